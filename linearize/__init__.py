@@ -1,0 +1,1 @@
+"""Offline builder: gain databases from plant models."""

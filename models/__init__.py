@@ -1,0 +1,1 @@
+"""Plant models (plain code satisfying the Plant protocol; import neither pwl nor linearize)."""

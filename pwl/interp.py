@@ -1,0 +1,109 @@
+"""The one multilinear interpolation kernel: shared corner weights, packed-block row additions.
+
+A dataset stored on a grid is a 2-D C-contiguous ``table`` of shape (grid.size, block): row r holds
+every value of grid node r (row-major node order) in one contiguous block. Interpolation at a
+point is then the 2^n-term sum ``out = sum_c w_c * table[row_c]``.
+
+Per step and grid: :func:`pwl.grid.locate` (one search) -> :func:`corner_weights` (once) ->
+:func:`interp_rows` for every table on that grid (shared weights). Nothing allocates.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .grid import Grid, locate
+
+
+@njit(cache=True, nogil=True)
+def corner_weights(idx, frac, strides, wts, rows):
+    """Fill the 2^n corner weights and table rows of the cell (idx, frac); return how many.
+
+    wts (float64) and rows (int64) need room for 2^n entries. Corners whose weight is exactly
+    zero (the point lies on a cell face) are dropped, so a point on a node costs one row copy.
+    """
+    n = idx.shape[0]
+    m = 0
+    for c in range(1 << n):
+        w = 1.0
+        r = 0
+        for j in range(n):
+            if (c >> j) & 1:
+                w *= frac[j]
+                r += (idx[j] + 1) * strides[j]
+            else:
+                w *= 1.0 - frac[j]
+                r += idx[j] * strides[j]
+        if w != 0.0:
+            wts[m] = w
+            rows[m] = r
+            m += 1
+    return m
+
+
+@njit(cache=True, nogil=True)
+def interp_rows(table, wts, rows, m, out):
+    """out[k] = sum_{c<m} wts[c] * table[rows[c], k] for k < out.size (out: float64, block)."""
+    nb = out.shape[0]
+    w0 = wts[0]
+    r0 = rows[0]
+    for k in range(nb):
+        out[k] = w0 * table[r0, k]
+    for c in range(1, m):
+        w = wts[c]
+        r = rows[c]
+        for k in range(nb):
+            out[k] += w * table[r, k]
+
+
+@njit(cache=True, nogil=True)
+def interp_point(table, bp, off, strides, extrapolate, point, idx, frac, wts, rows, out):
+    """Search + weights + interpolation of one table at one point; returns the clip flags."""
+    flags = locate(bp, off, point, extrapolate, idx, frac)
+    m = corner_weights(idx, frac, strides, wts, rows)
+    interp_rows(table, wts, rows, m, out)
+    return flags
+
+
+@njit(cache=True, nogil=True)
+def interp_many(table, bp, off, strides, extrapolate, points, out):
+    """Interpolate ``table`` at every row of ``points`` (k, n) into ``out`` (k, block).
+
+    The bracketing index of one point is the search hint of the next. Returns the number of
+    points that lay outside the grid on at least one axis.
+    """
+    n = points.shape[1]
+    idx = np.zeros(n, dtype=np.int64)
+    frac = np.zeros(n, dtype=np.float64)
+    wts = np.zeros(1 << n, dtype=np.float64)
+    rows = np.zeros(1 << n, dtype=np.int64)
+    outside = 0
+    for i in range(points.shape[0]):
+        f = interp_point(table, bp, off, strides, extrapolate, points[i], idx, frac, wts, rows, out[i])
+        if f != 0:
+            outside += 1
+    return outside
+
+
+def as_table(grid: Grid, values: np.ndarray) -> np.ndarray:
+    """Pack values of shape grid.shape + block_shape into a (grid.size, prod(block_shape)) table."""
+    values = np.asarray(values, dtype=np.float64)
+    if values.shape[: grid.ndim] != grid.shape:
+        raise ValueError(f"values of shape {values.shape} do not start with the grid shape {grid.shape}")
+    return np.ascontiguousarray(values.reshape(grid.size, -1))
+
+
+def interpolate(grid: Grid, values: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Interpolate gridded values (grid.shape + block_shape) at points (k, n) -> (k,) + block_shape.
+
+    Convenience for analysis code and tests; the runtime calls the kernels directly.
+    """
+    values = np.asarray(values, dtype=np.float64)
+    block_shape = values.shape[grid.ndim:]
+    table = as_table(grid, values)
+    pts = np.ascontiguousarray(np.atleast_2d(points), dtype=np.float64)
+    if pts.shape[1] != grid.ndim:
+        raise ValueError(f"points must have {grid.ndim} columns, got shape {pts.shape}")
+    out = np.empty((pts.shape[0], table.shape[1]))
+    interp_many(table, grid.bp, grid.off, grid.strides, grid.extrapolate, pts, out)
+    return out.reshape((pts.shape[0],) + block_shape)
