@@ -1,0 +1,203 @@
+"""Flight logs: the one definition of the log file format (HDF5 and CSV), writer and reader.
+
+HDF5 layout (format ``pwl-flight-log`` version 1)::
+
+    /                 attrs: format, format_version, dt (s), and free metadata (model, seed, ...)
+    /time             float64 (n,), seconds
+    /channels/<name>  float64 (n,), attr ``unit``: logged (measured) channels
+    /truth/<name>     float64 (n,), attr ``unit``: optional true values for validation
+
+CSV layout: one header row of ``name[unit]`` cells (``[unit]`` may be omitted), the first column
+``time[s]``, then one row per sample. Truth channels are written with a ``truth.`` prefix.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import os
+from dataclasses import dataclass, field
+
+import h5py
+import numpy as np
+
+from .h5io import atomic_h5, attr_str
+
+FORMAT = "pwl-flight-log"
+VERSION = 1
+
+
+class LogError(ValueError):
+    """A log file that cannot be used; the message names the file and the channel."""
+
+
+@dataclass
+class Log:
+    """A flight log in memory: time (n,), channels and truth as name -> float64 (n,) arrays."""
+
+    time: np.ndarray
+    channels: dict[str, np.ndarray]
+    units: dict[str, str]
+    truth: dict[str, np.ndarray] = field(default_factory=dict)
+    truth_units: dict[str, str] = field(default_factory=dict)
+    attrs: dict = field(default_factory=dict)
+    path: str = "<memory>"
+
+    def __len__(self):
+        return self.time.size
+
+    @property
+    def dt(self) -> float:
+        if "dt" in self.attrs:
+            return float(self.attrs["dt"])
+        return float(np.median(np.diff(self.time))) if self.time.size > 1 else float("nan")
+
+    def require(self, names, units=None) -> np.ndarray:
+        """Stack channels ``names`` into a C-contiguous (n, k) array; check units if given.
+
+        Raises :class:`LogError` naming the file and the missing or mismatched channel.
+        """
+        out = np.empty((len(self), len(names)))
+        for j, name in enumerate(names):
+            if name not in self.channels:
+                raise LogError(f"{self.path}: channel {name!r} is missing "
+                               f"(log has: {', '.join(sorted(self.channels))})")
+            if units is not None and units[j] and self.units.get(name, "") not in ("", units[j]):
+                raise LogError(f"{self.path}: channel {name!r} has unit {self.units[name]!r}, "
+                               f"expected {units[j]!r}")
+            out[:, j] = self.channels[name]
+        return out
+
+
+def write_log(path, log: Log) -> None:
+    """Write ``log`` as HDF5 (atomically); ``.csv`` paths go to :func:`write_csv`."""
+    if os.fspath(path).lower().endswith(".csv"):
+        return write_csv(path, log)
+    n = len(log)
+    with atomic_h5(path) as f:
+        f.attrs["format"] = FORMAT
+        f.attrs["format_version"] = VERSION
+        for k, v in log.attrs.items():
+            f.attrs[k] = v if isinstance(v, (int, float, str, np.number)) else json.dumps(v)
+        f.create_dataset("time", data=np.asarray(log.time, dtype=np.float64))
+        for grp_name, data, units in (("channels", log.channels, log.units),
+                                      ("truth", log.truth, log.truth_units)):
+            if grp_name == "truth" and not data:
+                continue
+            g = f.create_group(grp_name)
+            for name, v in data.items():
+                v = np.asarray(v, dtype=np.float64)
+                if v.shape != (n,):
+                    raise LogError(f"{path}: channel {name!r} has shape {v.shape}, expected ({n},)")
+                d = g.create_dataset(name, data=v, chunks=True if n > 4096 else None)
+                d.attrs["unit"] = units.get(name, "")
+
+
+def write_csv(path, log: Log) -> None:
+    """CSV export: header ``name[unit]``, time first, truth channels prefixed ``truth.``."""
+    cols = [("time", "s", log.time)]
+    cols += [(k, log.units.get(k, ""), v) for k, v in log.channels.items()]
+    cols += [("truth." + k, log.truth_units.get(k, ""), v) for k, v in log.truth.items()]
+    tmp = os.fspath(path) + ".tmp"
+    with open(tmp, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow([f"{n}[{u}]" if u else n for n, u, _ in cols])
+        data = np.column_stack([np.asarray(c[2], dtype=np.float64) for c in cols])
+        for row in data:
+            w.writerow([repr(float(x)) for x in row])
+    os.replace(tmp, path)
+
+
+def read_log(path) -> Log:
+    """Read an HDF5 or CSV log; raises :class:`LogError` naming the file on any defect."""
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise LogError(f"{path}: no such file")
+    if path.lower().endswith(".csv"):
+        return _read_csv(path)
+    if path.lower().endswith(".parquet"):
+        return _read_parquet(path)
+    try:
+        f = h5py.File(path, "r")
+    except OSError as e:
+        raise LogError(f"{path}: not a readable HDF5 file ({e})") from None
+    with f:
+        fmt = attr_str(f, "format")
+        if fmt != FORMAT:
+            raise LogError(f"{path}: not a flight log (format attribute {fmt!r}, expected {FORMAT!r})")
+        ver = int(f.attrs.get("format_version", -1))
+        if ver > VERSION:
+            raise LogError(f"{path}: flight-log format version {ver} is newer than this pwl reads ({VERSION})")
+        try:
+            time = np.asarray(f["time"][()], dtype=np.float64)
+            chans, units = _read_group(f, "channels", time.size, path)
+            truth, tunits = _read_group(f, "truth", time.size, path) if "truth" in f else ({}, {})
+        except (KeyError, OSError) as e:
+            raise LogError(f"{path}: damaged or incomplete log ({e})") from None
+        attrs = {k: attr_str(f, k) for k in f.attrs if k not in ("format", "format_version")}
+    if time.size == 0:
+        raise LogError(f"{path}: the log is empty (no samples)")
+    return Log(time, chans, units, truth, tunits, attrs, path)
+
+
+def _read_group(f, name, n, path):
+    if name not in f:
+        raise LogError(f"{path}: group /{name} is missing")
+    data, units = {}, {}
+    for k, d in f[name].items():
+        v = np.asarray(d[()], dtype=np.float64)
+        if v.shape != (n,):
+            raise LogError(f"{path}: /{name}/{k} has shape {v.shape}, expected ({n},) like /time")
+        data[k] = v
+        units[k] = attr_str(d, "unit", "")
+    return data, units
+
+
+def _split_header(cell: str):
+    cell = cell.strip()
+    if cell.endswith("]") and "[" in cell:
+        i = cell.index("[")
+        return cell[:i].strip(), cell[i + 1:-1].strip()
+    return cell, ""
+
+
+def _from_columns(path, names, units, data) -> Log:
+    if "time" not in names:
+        raise LogError(f"{path}: no 'time' column")
+    cols = dict(zip(names, data))
+    cunits = dict(zip(names, units))
+    time = cols.pop("time")
+    cunits.pop("time")
+    chans = {k: v for k, v in cols.items() if not k.startswith("truth.")}
+    truth = {k[6:]: v for k, v in cols.items() if k.startswith("truth.")}
+    if time.size == 0:
+        raise LogError(f"{path}: the log is empty (no samples)")
+    return Log(time, chans, {k: cunits[k] for k in chans}, truth,
+               {k[6:]: cunits[k] for k in cunits if k.startswith("truth.")}, {}, path)
+
+
+def _read_csv(path) -> Log:
+    with open(path, newline="") as fh:
+        rows = list(csv.reader(fh))
+    if not rows:
+        raise LogError(f"{path}: the file is empty")
+    names, units = zip(*[_split_header(c) for c in rows[0]])
+    body = [r for r in rows[1:] if r]
+    for i, r in enumerate(body):
+        if len(r) != len(names):
+            raise LogError(f"{path}: row {i + 2} has {len(r)} fields, header has {len(names)}")
+    try:
+        arr = np.array(body, dtype=np.float64).reshape(len(body), len(names))
+    except ValueError as e:
+        raise LogError(f"{path}: non-numeric value ({e})") from None
+    return _from_columns(path, list(names), list(units), list(arr.T))
+
+
+def _read_parquet(path) -> Log:
+    try:
+        import pyarrow.parquet as pq
+    except ImportError:
+        raise LogError(f"{path}: reading Parquet needs pyarrow (pip install pyarrow)") from None
+    t = pq.read_table(path)
+    names, units = zip(*[_split_header(c) for c in t.column_names])
+    data = [np.asarray(t.column(i).to_numpy(), dtype=np.float64) for i in range(t.num_columns)]
+    return _from_columns(path, list(names), list(units), data)
