@@ -1,0 +1,368 @@
+"""The gain database: one schema, one writer, one reader (format ``pwl-gain-database``).
+
+The schema is documented in docs/database-format.md and defined here once, in :func:`schema`:
+every dataset with its dtype kind and its shape in terms of the system sizes. ``save`` writes
+exactly that list; ``open`` checks exactly that list and names the file and dataset of the first
+thing that is wrong.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import os
+from dataclasses import dataclass, field
+
+import h5py
+import numpy as np
+
+from . import __version__
+from .grid import POLICIES, Axis, AxisError, Grid, check_breakpoints
+from .h5io import atomic_h5, attr_str, read_strings, write_strings
+
+FORMAT = "pwl-gain-database"
+VERSION = 1
+KINDS = ("x", "u", "y", "z", "h", "q", "p")
+MATRICES = ("A", "B", "C", "D", "F", "G", "L", "M", "N")
+
+# status codes
+COMPUTED, FILLED, EXTRAPOLATED = 0, 1, 2   # /trim/status
+REPLACED = 1                               # /dynamics/status, /kalman/status (donor index recorded)
+
+
+class DatabaseError(ValueError):
+    """A gain database that cannot be used. The message names the file and the dataset."""
+
+
+class NotHDF5Error(DatabaseError):
+    pass
+
+
+class ForeignFormatError(DatabaseError):
+    pass
+
+
+class VersionError(DatabaseError):
+    pass
+
+
+class MissingDataError(DatabaseError):
+    pass
+
+
+class ShapeError(DatabaseError):
+    pass
+
+
+class BadAxisError(DatabaseError):
+    pass
+
+
+@dataclass
+class Correction:
+    """Parameter correction v_c = v / (theta**a * delta**b), theta = T_in/T_std, delta = P_in/P_std.
+
+    ``exponents`` maps kind (x, u, y, z) -> float64 (n, 2) array of (a, b) per channel.
+    """
+
+    theta_channel: str
+    delta_channel: str
+    exponents: dict[str, np.ndarray]
+    T_std: float = 288.15
+    P_std: float = 101325.0
+
+
+@dataclass
+class GainDatabase:
+    """A gain database in memory. Shapes (T = trim grid shape, D = dynamics grid shape,
+    na = nx + nq augmented states):
+
+    - ``names``/``units``: kind (x u y z h q p) -> list of str
+    - ``schedule``: per p: (log channel, corrected, scale): p = scale * channel (corrected first)
+    - ``trim``: x, u, y, z -> T + (n,); ``trim_status`` int8 T (0 computed, 1 filled, 2 extrapolated)
+    - ``dynamics``: A..N discrete-time (dt seconds) -> D + (rows, cols); ``dyn_status`` int8 D
+      (0 computed, 1 replaced), ``dyn_donor`` int64 D (flat index of the donor node, -1 none)
+    - ``tuner``: V (nq, nh), V_pinv (nh, nq), h_ref (nh,)
+    - ``kalman``: K D + (na, ny) update gain, P D + (na, na) a-priori covariance, Q (na, na),
+      R (ny, ny); ``kalman_status``/``kalman_donor`` as for dynamics
+    - ``attrs``: free metadata (model, model_parameters, spec, tuner_method, tuner_metric, ...)
+    - ``zones``: optional record; ``tables``: name -> record; a record is (arrays, attrs)
+    """
+
+    names: dict[str, list[str]]
+    units: dict[str, list[str]]
+    trim_grid: Grid
+    dyn_grid: Grid
+    trim: dict[str, np.ndarray]
+    trim_status: np.ndarray
+    dynamics: dict[str, np.ndarray]
+    dyn_status: np.ndarray
+    dyn_donor: np.ndarray
+    tuner: dict[str, np.ndarray]
+    kalman: dict[str, np.ndarray]
+    kalman_status: np.ndarray
+    kalman_donor: np.ndarray
+    dt: float
+    schedule: list[tuple[str, bool, float]] | None = None
+    correction: Correction | None = None
+    attrs: dict = field(default_factory=dict)
+    zones: tuple[dict, dict] | None = None
+    tables: dict[str, tuple[dict, dict]] = field(default_factory=dict)
+    path: str = "<memory>"
+
+    # ---- sizes -------------------------------------------------------------------------------
+    def n(self, kind: str) -> int:
+        return len(self.names[kind])
+
+    @property
+    def na(self) -> int:
+        return self.n("x") + self.n("q")
+
+    @property
+    def policy(self) -> str:
+        return self.trim_grid.policy
+
+    def __post_init__(self):
+        if self.schedule is None:
+            self.schedule = [(p, False, 1.0) for p in self.names["p"]]
+        self.validate()
+
+    # ---- the schema --------------------------------------------------------------------------
+    def schema(self):
+        """(path, dtype kind, shape) of every dataset, from the sizes. The one schema definition."""
+        nx, nu, ny, nz, nh, nq = (self.n(k) for k in "xuyzhq")
+        na = nx + nq
+        T, D = self.trim_grid.shape, self.dyn_grid.shape
+        mats = {"A": (nx, nx), "B": (nx, nu), "C": (ny, nx), "D": (ny, nu), "F": (nz, nx),
+                "G": (nz, nu), "L": (nx, nh), "M": (ny, nh), "N": (nz, nh)}
+        out = [(f"trim/{k}", "f", T + (self.n(k),)) for k in "xuyz"]
+        out.append(("trim/status", "i1", T))
+        out += [(f"dynamics/{k}", "f", D + s) for k, s in mats.items()]
+        out += [("dynamics/status", "i1", D), ("dynamics/donor", "i8", D)]
+        out += [("tuner/V", "f", (nq, nh)), ("tuner/V_pinv", "f", (nh, nq)), ("tuner/h_ref", "f", (nh,))]
+        out += [("kalman/K", "f", D + (na, ny)), ("kalman/P", "f", D + (na, na)),
+                ("kalman/Q", "f", (na, na)), ("kalman/R", "f", (ny, ny)),
+                ("kalman/status", "i1", D), ("kalman/donor", "i8", D)]
+        if self.correction is not None:
+            out += [(f"correction/{k}", "f", (self.n(k), 2)) for k in "xuyz"]
+        return out
+
+    def _get(self, path: str) -> np.ndarray:
+        grp, name = path.split("/")
+        if grp == "trim":
+            return self.trim_status if name == "status" else self.trim[name]
+        if grp == "dynamics":
+            extra = {"status": self.dyn_status, "donor": self.dyn_donor}
+            return extra[name] if name in extra else self.dynamics[name]
+        if grp == "kalman":
+            extra = {"status": self.kalman_status, "donor": self.kalman_donor}
+            return extra[name] if name in extra else self.kalman[name]
+        if grp == "tuner":
+            return self.tuner[name]
+        if grp == "correction":
+            return self.correction.exponents[name]
+        raise KeyError(path)
+
+    def validate(self) -> None:
+        """Check names, grids and every dataset's presence, dtype kind and shape."""
+        where = self.path
+        for k in KINDS:
+            if k not in self.names or k not in self.units:
+                raise MissingDataError(f"{where}: /names/{k} or /units/{k} is missing")
+            if len(self.units[k]) != len(self.names[k]):
+                raise ShapeError(f"{where}: /units/{k} has {len(self.units[k])} entries, "
+                                 f"/names/{k} has {len(self.names[k])}")
+        for g, label in ((self.trim_grid, "trim"), (self.dyn_grid, "dynamics")):
+            missing = [a.name for a in g.axes if a.name not in self.names["p"]]
+            if missing:
+                raise BadAxisError(f"{where}: /{label}/axes {missing} are not scheduling variables "
+                                   f"{self.names['p']}")
+        if len(self.schedule) != self.n("p"):
+            raise ShapeError(f"{where}: schedule has {len(self.schedule)} entries for "
+                             f"{self.n('p')} scheduling variables")
+        for path, kind, shape in self.schema():
+            try:
+                a = self._get(path)
+            except KeyError:
+                raise MissingDataError(f"{where}: dataset /{path} is missing") from None
+            a = np.asarray(a)
+            if a.shape != shape:
+                raise ShapeError(f"{where}: dataset /{path} has shape {a.shape}, expected {shape}")
+            if kind == "f" and a.dtype != np.float64:
+                raise ShapeError(f"{where}: dataset /{path} has dtype {a.dtype}, expected float64")
+            if kind != "f" and a.dtype.kind != "i":
+                raise ShapeError(f"{where}: dataset /{path} has dtype {a.dtype}, expected integer")
+        if not (np.isfinite(self.dt) and self.dt > 0):
+            raise DatabaseError(f"{where}: /dynamics attribute dt = {self.dt} is not a positive number")
+
+    # ---- writing -----------------------------------------------------------------------------
+    def save(self, path) -> None:
+        """Write the database to ``path`` atomically (temporary file + rename)."""
+        self.validate()
+        with atomic_h5(path) as f:
+            f.attrs["format"] = FORMAT
+            f.attrs["format_version"] = VERSION
+            f.attrs["created"] = self.attrs.get("created") or _dt.datetime.now(
+                _dt.timezone.utc).isoformat(timespec="seconds")
+            f.attrs["software_version"] = __version__
+            f.attrs["out_of_range"] = self.policy
+            f.attrs["attrs_json"] = json.dumps(self.attrs, sort_keys=True)
+            for k in KINDS:
+                write_strings(f.require_group("names"), k, self.names[k])
+                write_strings(f.require_group("units"), k, self.units[k])
+            s = f.create_group("schedule")
+            write_strings(s, "channel", [c for c, _, _ in self.schedule])
+            s.create_dataset("corrected", data=np.array([bool(c) for _, c, _ in self.schedule]))
+            s.create_dataset("scale", data=np.array([float(v) for _, _, v in self.schedule]))
+            for grid, grp in ((self.trim_grid, "trim"), (self.dyn_grid, "dynamics")):
+                ax = f.require_group(grp).create_group("axes")
+                write_strings(ax, "order", grid.names)
+                for a in grid.axes:
+                    d = ax.create_dataset(a.name, data=a.values)
+                    d.attrs["unit"] = a.unit
+            f["dynamics"].attrs["dt"] = float(self.dt)
+            f["dynamics"].attrs["method"] = self.attrs.get("discretization", "zoh")
+            f.require_group("kalman").attrs["form"] = "update"
+            if self.correction is not None:
+                c = f.require_group("correction")
+                c.attrs.update({"theta_channel": self.correction.theta_channel,
+                                "delta_channel": self.correction.delta_channel,
+                                "T_std": self.correction.T_std, "P_std": self.correction.P_std})
+            for path_, kind, _ in self.schema():
+                a = np.asarray(self._get(path_))
+                f.create_dataset(path_, data=a.astype({"f": np.float64, "i1": np.int8, "i8": np.int64}[kind]))
+            if self.zones is not None:
+                write_record(f.create_group("zones"), *self.zones)
+            if self.tables:
+                t = f.create_group("tables")
+                for name, rec in self.tables.items():
+                    write_record(t.create_group(name), *rec)
+
+    # ---- reading -----------------------------------------------------------------------------
+    @classmethod
+    def open(cls, path) -> "GainDatabase":
+        """Read and validate a database; raises a :class:`DatabaseError` subclass naming what is wrong."""
+        path = os.fspath(path)
+        if not os.path.exists(path):
+            raise DatabaseError(f"{path}: no such file")
+        if not h5py.is_hdf5(path):
+            raise NotHDF5Error(f"{path}: not an HDF5 file")
+        try:
+            f = h5py.File(path, "r")
+        except OSError as e:
+            raise NotHDF5Error(f"{path}: cannot be read as HDF5 ({e})") from None
+        with f:
+            fmt = attr_str(f, "format")
+            if fmt != FORMAT:
+                raise ForeignFormatError(f"{path}: format attribute is {fmt!r}, not {FORMAT!r}")
+            ver = int(f.attrs.get("format_version", -1))
+            if ver > VERSION:
+                raise VersionError(f"{path}: format version {ver} is newer than this pwl reads "
+                                   f"({VERSION}); upgrade pwl")
+            if ver < 1:
+                raise VersionError(f"{path}: invalid format version {ver}")
+            try:
+                return cls._read(f, path)
+            except KeyError as e:
+                raise MissingDataError(f"{path}: {e.args[0] if e.args else 'a dataset'} is missing") from None
+            except OSError as e:
+                raise DatabaseError(f"{path}: damaged file ({e})") from None
+
+    @classmethod
+    def _read(cls, f, path):
+        def need(p):
+            if p not in f:
+                raise MissingDataError(f"{path}: dataset /{p} is missing")
+            return f[p]
+
+        names = {k: read_strings(need(f"names/{k}")) for k in KINDS}
+        units = {k: read_strings(need(f"units/{k}")) for k in KINDS}
+        policy = attr_str(f, "out_of_range", "clip")
+        if policy not in POLICIES:
+            raise DatabaseError(f"{path}: attribute out_of_range = {policy!r} is not one of {POLICIES}")
+        grids = {}
+        for grp in ("trim", "dynamics"):
+            order = read_strings(need(f"{grp}/axes/order"))
+            axes = []
+            for name in order:
+                d = need(f"{grp}/axes/{name}")
+                v = np.asarray(d[()], dtype=np.float64)
+                try:
+                    check_breakpoints(v, f"/{grp}/axes/{name}")
+                except AxisError as e:
+                    raise BadAxisError(f"{path}: {e}") from None
+                axes.append(Axis(name, v, attr_str(d, "unit", "")))
+            grids[grp] = Grid(axes, policy)
+        s = need("schedule")
+        schedule = list(zip(read_strings(need("schedule/channel")),
+                            [bool(b) for b in s["corrected"][()]], [float(v) for v in s["scale"][()]]))
+        correction = None
+        if "correction" in f:
+            c = f["correction"]
+            correction = Correction(attr_str(c, "theta_channel"), attr_str(c, "delta_channel"),
+                                    {k: need(f"correction/{k}")[()] for k in "xuyz"},
+                                    float(c.attrs["T_std"]), float(c.attrs["P_std"]))
+        dyn = need("dynamics")
+        db = cls.__new__(cls)
+        db.names, db.units, db.schedule, db.correction = names, units, schedule, correction
+        db.trim_grid, db.dyn_grid, db.path = grids["trim"], grids["dynamics"], path
+        db.dt = float(dyn.attrs.get("dt", np.nan))
+        db.attrs = json.loads(attr_str(f, "attrs_json", "{}"))
+        db.attrs.setdefault("created", attr_str(f, "created", ""))
+        db.trim = {k: need(f"trim/{k}")[()] for k in "xuyz"}
+        db.trim_status = need("trim/status")[()]
+        db.dynamics = {k: need(f"dynamics/{k}")[()] for k in MATRICES}
+        db.dyn_status, db.dyn_donor = need("dynamics/status")[()], need("dynamics/donor")[()]
+        db.tuner = {k: need(f"tuner/{k}")[()] for k in ("V", "V_pinv", "h_ref")}
+        db.kalman = {k: need(f"kalman/{k}")[()] for k in ("K", "P", "Q", "R")}
+        db.kalman_status, db.kalman_donor = need("kalman/status")[()], need("kalman/donor")[()]
+        db.zones = read_record(f["zones"]) if "zones" in f else None
+        db.tables = {k: read_record(g) for k, g in f["tables"].items()} if "tables" in f else {}
+        db.validate()
+        return db
+
+    # ---- summary -----------------------------------------------------------------------------
+    def summary(self) -> str:
+        """A readable multi-line summary (what ``pwl info`` prints)."""
+        lines = [f"gain database {self.path}",
+                 f"  format {FORMAT} v{VERSION}, model {self.attrs.get('model', '?')}, "
+                 f"created {self.attrs.get('created', '?')}, dt = {self.dt:g} s, "
+                 f"out-of-range policy {self.policy}"]
+        if os.path.exists(self.path):
+            lines[0] += f" ({os.path.getsize(self.path) / 1e6:.2f} MB)"
+        for label, g in (("trim grid", self.trim_grid), ("dynamics grid", self.dyn_grid)):
+            lines.append(f"  {label}: {' x '.join(map(str, g.shape))} = {g.size} points")
+            for a in g.axes:
+                lines.append(f"    {a.name:<8} [{a.unit}] {a.lo:g} .. {a.hi:g} ({len(a)})")
+        for k, title in zip(KINDS, ("states", "inputs", "sensed outputs", "unmeasured outputs",
+                                    "health parameters", "tuners", "scheduling")):
+            items = ", ".join(f"{n} [{u}]" if u else n for n, u in zip(self.names[k], self.units[k]))
+            lines.append(f"  {k} ({title}, {self.n(k)}): {items}")
+        ts = np.bincount(self.trim_status.reshape(-1).astype(np.int64), minlength=3)
+        lines.append(f"  trim status: {ts[0]} computed, {ts[1]} filled, {ts[2]} extrapolated")
+        lines.append(f"  dynamics: {int((self.dyn_status == 0).sum())} computed, "
+                     f"{int((self.dyn_status != 0).sum())} replaced by nearest")
+        lines.append(f"  kalman gains: {int((self.kalman_status == 0).sum())} computed, "
+                     f"{int((self.kalman_status != 0).sum())} replaced by nearest")
+        lines.append(f"  tuner: {self.attrs.get('tuner_method', '?')}, metric "
+                     f"{self.attrs.get('tuner_metric', float('nan')):.4g}")
+        if self.correction is not None:
+            lines.append(f"  parameter correction: theta = {self.correction.theta_channel}/"
+                         f"{self.correction.T_std:g}, delta = {self.correction.delta_channel}/"
+                         f"{self.correction.P_std:g}")
+        if self.zones is not None:
+            lines.append(f"  gain zones: {self.zones[1].get('k', '?')}")
+        if self.tables:
+            lines.append(f"  adaptive tables: {', '.join(self.tables)}")
+        return "\n".join(lines)
+
+
+def write_record(group, arrays: dict, attrs: dict) -> None:
+    """Store a record (name -> ndarray, JSON-able attrs) in an HDF5 group."""
+    for k, v in arrays.items():
+        group.create_dataset(k, data=np.asarray(v))
+    group.attrs["attrs_json"] = json.dumps(attrs, sort_keys=True)
+
+
+def read_record(group) -> tuple[dict, dict]:
+    arrays = {k: d[()] for k, d in group.items() if isinstance(d, h5py.Dataset)}
+    return arrays, json.loads(attr_str(group, "attrs_json", "{}"))

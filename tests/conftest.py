@@ -1,0 +1,58 @@
+"""Shared test fixtures: a small synthetic but internally consistent gain database."""
+import numpy as np
+import pytest
+
+from pwl.database import Correction, GainDatabase
+from pwl.grid import Axis, Grid
+
+
+def make_database(seed=0, nx=2, nu=1, ny=3, nz=2, nh=4, nq=2, trim_shape=(3, 4), dyn_shape=(2, 3),
+                  policy="clip", correction=True, dt=0.015):
+    """A random database whose matrices are stable and whose gains are arbitrary but finite.
+
+    Scheduling variables: p0 (trim and dynamics axis), p1 (both); trims vary smoothly.
+    """
+    rng = np.random.default_rng(seed)
+    na = nx + nq
+
+    def axis(name, n, lo, hi):
+        v = np.sort(rng.uniform(lo, hi, n))
+        v[0], v[-1] = lo, hi
+        return Axis(name, v, "u_" + name)
+
+    tg = Grid([axis("p0", trim_shape[0], 0.0, 10.0), axis("p1", trim_shape[1], 50.0, 100.0)], policy)
+    dg = Grid([axis("p0", dyn_shape[0], 0.0, 10.0), axis("p1", dyn_shape[1], 50.0, 100.0)], policy)
+    T, D = tg.shape, dg.shape
+    names = {"x": [f"x{i}" for i in range(nx)], "u": [f"u{i}" for i in range(nu)],
+             "y": [f"y{i}" for i in range(ny)], "z": [f"z{i}" for i in range(nz)],
+             "h": [f"h{i}" for i in range(nh)], "q": [f"q{i}" for i in range(nq)], "p": ["p0", "p1"]}
+    units = {k: ["unit_" + n for n in v] for k, v in names.items()}
+    units["h"] = ["-"] * nh
+    trim = {k: 1.0 + rng.random(T + (len(names[k]),)) for k in "xuyz"}
+    mats = {"A": (nx, nx), "B": (nx, nu), "C": (ny, nx), "D": (ny, nu), "F": (nz, nx), "G": (nz, nu),
+            "L": (nx, nh), "M": (ny, nh), "N": (nz, nh)}
+    dyn = {k: rng.normal(size=D + s) for k, s in mats.items()}
+    dyn["A"] = 0.9 * np.eye(nx) + 0.02 * dyn["A"]
+    V = rng.normal(size=(nq, nh))
+    db = GainDatabase(
+        names=names, units=units, trim_grid=tg, dyn_grid=dg, trim=trim,
+        trim_status=rng.integers(0, 3, T).astype(np.int8),
+        dynamics=dyn, dyn_status=np.zeros(D, np.int8), dyn_donor=-np.ones(D, np.int64),
+        tuner={"V": V, "V_pinv": np.linalg.pinv(V), "h_ref": np.zeros(nh)},
+        kalman={"K": 0.1 * rng.normal(size=D + (na, ny)), "P": np.broadcast_to(np.eye(na), D + (na, na)).copy(),
+                "Q": np.eye(na) * 1e-4, "R": np.eye(ny) * 1e-3},
+        kalman_status=np.zeros(D, np.int8), kalman_donor=-np.ones(D, np.int64), dt=dt,
+        schedule=[("p0", False, 1.0), ("c1", True, 2.0)],
+        correction=Correction("Tin", "Pin", {k: rng.choice([0.0, 0.5, 1.0], (len(names[k]), 2))
+                                             for k in "xuyz"}) if correction else None,
+        attrs={"model": "synthetic", "spec": "[grid]\nx = 1\n", "tuner_method": "subset",
+               "tuner_metric": 0.25},
+        zones=({"centers": rng.random((3, 2))}, {"k": 3}),
+        tables={"bias_T48": ({"values": rng.random((4, 5))}, {"law": "exact", "ratio": 0.1})},
+    )
+    return db
+
+
+@pytest.fixture
+def synthetic_db():
+    return make_database()
