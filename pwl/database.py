@@ -82,8 +82,9 @@ class GainDatabase:
     - ``dynamics``: A..N discrete-time (dt seconds) -> D + (rows, cols); ``dyn_status`` int8 D
       (0 computed, 1 replaced), ``dyn_donor`` int64 D (flat index of the donor node, -1 none)
     - ``tuner``: V (nq, nh), V_pinv (nh, nq), h_ref (nh,)
-    - ``kalman``: K D + (na, ny) update gain, P D + (na, na) a-priori covariance, Q (na, na),
-      R (ny, ny); ``kalman_status``/``kalman_donor`` as for dynamics
+    - ``kalman``: K D + (na, ny) update gain, P D + (na, na) a-priori covariance, and the
+      covariances used, Q D + (na, na), R D + (ny, ny) (noise scales with the operating point);
+      ``kalman_status``/``kalman_donor`` as for dynamics
     - ``attrs``: free metadata (model, model_parameters, spec, tuner_method, tuner_metric, ...)
     - ``zones``: optional record; ``tables``: name -> record; a record is (arrays, attrs)
     """
@@ -140,7 +141,7 @@ class GainDatabase:
         out += [("dynamics/status", "i1", D), ("dynamics/donor", "i8", D)]
         out += [("tuner/V", "f", (nq, nh)), ("tuner/V_pinv", "f", (nh, nq)), ("tuner/h_ref", "f", (nh,))]
         out += [("kalman/K", "f", D + (na, ny)), ("kalman/P", "f", D + (na, na)),
-                ("kalman/Q", "f", (na, na)), ("kalman/R", "f", (ny, ny)),
+                ("kalman/Q", "f", D + (na, na)), ("kalman/R", "f", D + (ny, ny)),
                 ("kalman/status", "i1", D), ("kalman/donor", "i8", D)]
         if self.correction is not None:
             out += [(f"correction/{k}", "f", (self.n(k), 2)) for k in "xuyz"]
