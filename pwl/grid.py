@@ -37,7 +37,7 @@ class Axis:
     unit: str = ""
 
     def __post_init__(self):
-        v = np.array(self.values, dtype=np.float64, copy=True).reshape(-1)
+        v = np.array(self.values, dtype=np.float64, copy=True)
         object.__setattr__(self, "values", v)
         check_breakpoints(v, self.name)
         v.setflags(write=False)

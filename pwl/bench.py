@@ -1,0 +1,83 @@
+"""Benchmarks: speed as ratios against a reference run in the same process (never asserted)."""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from .grid import Axis, Grid
+from numba import njit
+
+from .grid import locate
+from .interp import as_table, corner_weights, interp_many, interp_rows
+
+
+def _best_of(fn, repeat=3):
+    best = np.inf
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def random_walk(grid: Grid, n: int, step: float = 0.002, seed: int = 0) -> np.ndarray:
+    """n points (n, ndim) wandering through the grid box (steps of ``step`` x the axis span)."""
+    rng = np.random.default_rng(seed)
+    lo = np.array([a.lo for a in grid.axes])
+    hi = np.array([a.hi for a in grid.axes])
+    u = np.cumsum(rng.normal(0.0, step, (n, grid.ndim)), axis=0) + 0.5
+    u = np.abs((u + 1.0) % 2.0 - 1.0)  # reflect into [0, 1]
+    return np.ascontiguousarray(lo + u * (hi - lo))
+
+
+@njit(cache=True)
+def _interp_loop(table, bp, off, strides, points, out):
+    """What the runtime does per step: search, weights, one block into a reused buffer."""
+    n = points.shape[1]
+    idx = np.zeros(n, dtype=np.int64)
+    frac = np.zeros(n, dtype=np.float64)
+    wts = np.zeros(1 << n, dtype=np.float64)
+    rows = np.zeros(1 << n, dtype=np.int64)
+    check = 0.0
+    for i in range(points.shape[0]):
+        locate(bp, off, points[i], False, idx, frac)
+        m = corner_weights(idx, frac, strides, wts, rows)
+        interp_rows(table, wts, rows, m, out)
+        check += out[i % out.shape[0]]
+    return check
+
+
+def bench_interp(n_points: int = 200_000, block: int = 200, shape=(9, 7, 5), seed: int = 0) -> dict:
+    """Block interpolations per second: our kernel (search + weights + 2^n row additions, one
+    point at a time as the runtime does) versus scipy's RegularGridInterpolator on the same data,
+    called per point and vectorised over all points."""
+    from scipy.interpolate import RegularGridInterpolator
+
+    rng = np.random.default_rng(seed)
+    grid = Grid([Axis(f"a{j}", np.cumsum(rng.uniform(0.5, 1.5, n))) for j, n in enumerate(shape)])
+    values = rng.normal(size=grid.shape + (block,))
+    table = as_table(grid, values)
+    out = np.empty(block)
+    res = {"grid": list(shape), "block_doubles": block, "points": n_points}
+    for kind, pts in (("walk", random_walk(grid, n_points, seed=seed)),
+                      ("random", np.ascontiguousarray(
+                          [a.lo for a in grid.axes] + rng.random((n_points, grid.ndim))
+                          * [a.hi - a.lo for a in grid.axes]))):
+        _interp_loop(table, grid.bp, grid.off, grid.strides, pts[:10], out)  # compile
+        t = _best_of(lambda: _interp_loop(table, grid.bp, grid.off, grid.strides, pts, out))
+        res[f"pwl_per_s_{kind}"] = n_points / t
+    rgi = RegularGridInterpolator([a.values for a in grid.axes], values)
+    pts = random_walk(grid, n_points, seed=seed)
+    m = 2000
+    t = _best_of(lambda: [rgi(pts[i]) for i in range(m)])
+    res["rgi_per_s_single"] = m / t
+    t = _best_of(lambda: rgi(pts[:20000]))
+    res["rgi_per_s_vectorised"] = 20000 / t
+    ref = rgi(pts[:1000])
+    got = np.empty((1000, block))
+    interp_many(table, grid.bp, grid.off, grid.strides, False, pts[:1000], got)
+    res["max_abs_diff_vs_rgi"] = float(np.abs(got - ref).max())
+    res["ratio_vs_rgi_single"] = res["pwl_per_s_walk"] / res["rgi_per_s_single"]
+    res["ratio_vs_rgi_vectorised"] = res["pwl_per_s_walk"] / res["rgi_per_s_vectorised"]
+    return res

@@ -1,0 +1,33 @@
+"""pwl bench TARGET [--json]: speed benchmarks reported as ratios against a same-run reference."""
+import importlib
+import json
+
+HELP = "benchmarks (interp: interpolation kernel vs RegularGridInterpolator; run: the runtime; table: adaptive tables)"
+
+#: target -> "module:function" returning a dict of figures
+TARGETS = {
+    "interp": "pwl.bench:bench_interp",
+    "run": "pwl.bench:bench_run",
+    "table": "pwl.adaptive:benchmark",
+}
+
+
+def add_arguments(p):
+    p.add_argument("target", choices=sorted(TARGETS))
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+
+
+def run(args) -> int:
+    mod, fn = TARGETS[args.target].split(":")
+    try:
+        func = getattr(importlib.import_module(mod), fn)
+    except (ImportError, AttributeError):
+        print(f"pwl bench {args.target}: not available in this version")
+        return 2
+    res = func()
+    if args.json:
+        print(json.dumps(res, indent=2))
+    else:
+        for k, v in res.items():
+            print(f"{k:>28}: {v:,.4g}" if isinstance(v, float) else f"{k:>28}: {v}")
+    return 0

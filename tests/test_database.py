@@ -1,0 +1,167 @@
+"""Gain database: exact round trip, named errors for each kind of corruption, atomic save."""
+import os
+
+import h5py
+import numpy as np
+import pytest
+
+from conftest import make_database
+from pwl import database as dbm
+from pwl.database import GainDatabase
+
+
+def assert_same(a, b):
+    assert a.names == b.names and a.units == b.units
+    assert a.trim_grid == b.trim_grid and a.dyn_grid == b.dyn_grid
+    assert a.dt == b.dt and a.schedule == b.schedule
+    for k in "xuyz":
+        np.testing.assert_array_equal(a.trim[k], b.trim[k])
+    for k in dbm.MATRICES:
+        np.testing.assert_array_equal(a.dynamics[k], b.dynamics[k])
+    for d1, d2 in ((a.tuner, b.tuner), (a.kalman, b.kalman)):
+        assert d1.keys() == d2.keys()
+        for k in d1:
+            np.testing.assert_array_equal(d1[k], d2[k])
+    for k in ("trim_status", "dyn_status", "dyn_donor", "kalman_status", "kalman_donor"):
+        np.testing.assert_array_equal(getattr(a, k), getattr(b, k))
+        assert getattr(a, k).dtype.kind == getattr(b, k).dtype.kind
+    if a.correction is None:
+        assert b.correction is None
+    else:
+        c, d = a.correction, b.correction
+        assert (c.theta_channel, c.delta_channel, c.T_std, c.P_std) == (
+            d.theta_channel, d.delta_channel, d.T_std, d.P_std)
+        for k in "xuyz":
+            np.testing.assert_array_equal(c.exponents[k], d.exponents[k])
+    assert {k: v for k, v in a.attrs.items() if k != "created"} == \
+        {k: v for k, v in b.attrs.items() if k != "created"}
+    for r1, r2 in [(a.zones, b.zones)] + [(a.tables[k], b.tables[k]) for k in a.tables]:
+        assert r1[1] == r2[1] and r1[0].keys() == r2[0].keys()
+        for k in r1[0]:
+            np.testing.assert_array_equal(r1[0][k], r2[0][k])
+    assert a.tables.keys() == b.tables.keys()
+
+
+@pytest.mark.parametrize("kw", [{}, {"correction": False, "policy": "extrapolate"},
+                                {"nq": 0, "trim_shape": (2, 2), "dyn_shape": (2, 2)}])
+def test_round_trip_is_exact(tmp_path, kw):
+    db = make_database(**kw)
+    p = tmp_path / "db.h5"
+    db.save(p)
+    back = GainDatabase.open(p)
+    assert_same(db, back)
+    back.save(tmp_path / "again.h5")  # and a second generation is identical too
+    assert_same(db, GainDatabase.open(tmp_path / "again.h5"))
+
+
+@pytest.fixture
+def saved(tmp_path):
+    p = tmp_path / "db.h5"
+    make_database().save(p)
+    return p
+
+
+def edit(path, fn):
+    with h5py.File(path, "r+") as f:
+        fn(f)
+
+
+def test_not_hdf5(tmp_path):
+    p = tmp_path / "notes.h5"
+    p.write_text("hello")
+    with pytest.raises(dbm.NotHDF5Error, match="notes.h5"):
+        GainDatabase.open(p)
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(dbm.DatabaseError, match="no such file"):
+        GainDatabase.open(tmp_path / "nope.h5")
+
+
+def test_foreign_format(saved):
+    edit(saved, lambda f: f.attrs.__setitem__("format", "something-else"))
+    with pytest.raises(dbm.ForeignFormatError, match="something-else"):
+        GainDatabase.open(saved)
+
+
+def test_other_hdf5_file(tmp_path):
+    p = tmp_path / "other.h5"
+    with h5py.File(p, "w") as f:
+        f["data"] = np.arange(3)
+    with pytest.raises(dbm.ForeignFormatError, match="other.h5"):
+        GainDatabase.open(p)
+
+
+def test_newer_version(saved):
+    edit(saved, lambda f: f.attrs.__setitem__("format_version", dbm.VERSION + 1))
+    with pytest.raises(dbm.VersionError, match="newer"):
+        GainDatabase.open(saved)
+
+
+@pytest.mark.parametrize("ds", ["kalman/K", "dynamics/L", "trim/y", "tuner/V_pinv", "names/q",
+                                "trim/axes/p1", "dynamics/donor", "correction/u"])
+def test_missing_dataset_is_named(saved, ds):
+    edit(saved, lambda f: f.__delitem__(ds))
+    with pytest.raises(dbm.MissingDataError, match=ds):
+        GainDatabase.open(saved)
+
+
+@pytest.mark.parametrize("ds", ["kalman/K", "dynamics/A", "trim/x", "tuner/V"])
+def test_wrong_shape_is_named(saved, ds):
+    def cut(f):
+        a = f[ds][()]
+        del f[ds]
+        f[ds] = a[..., :-1] if a.shape[-1] > 1 else np.concatenate([a, a], axis=-1)
+    edit(saved, cut)
+    with pytest.raises(dbm.ShapeError, match=ds):
+        GainDatabase.open(saved)
+
+
+@pytest.mark.parametrize("bad, msg", [(np.nan, "not finite"), (-1.0, "not strictly increasing")])
+def test_bad_axis_is_named(saved, bad, msg):
+    def spoil(f):
+        a = f["dynamics/axes/p1"][()]
+        a[1] = bad
+        f["dynamics/axes/p1"][...] = a
+    edit(saved, spoil)
+    with pytest.raises(dbm.BadAxisError, match=f"dynamics/axes/p1.*{msg}"):
+        GainDatabase.open(saved)
+
+
+def test_crash_during_save_leaves_no_partial_file(tmp_path, monkeypatch):
+    p = tmp_path / "db.h5"
+    good = make_database(seed=1)
+    good.save(p)
+    before = p.read_bytes()
+
+    def boom(*a, **k):
+        raise RuntimeError("disk on fire")
+    monkeypatch.setattr(dbm, "write_record", boom)  # fails after most datasets are written
+    with pytest.raises(RuntimeError, match="disk on fire"):
+        make_database(seed=2).save(p)
+    assert p.read_bytes() == before                      # old file untouched
+    assert sorted(os.listdir(tmp_path)) == ["db.h5"]      # no temporary left behind
+    assert_same(good, GainDatabase.open(p))
+
+
+def test_crash_of_first_save_leaves_nothing(tmp_path, monkeypatch):
+    monkeypatch.setattr(dbm, "write_record", lambda *a, **k: 1 / 0)
+    with pytest.raises(ZeroDivisionError):
+        make_database().save(tmp_path / "db.h5")
+    assert os.listdir(tmp_path) == []
+
+
+def test_inconsistent_in_memory_database_is_rejected():
+    db = make_database()
+    db.kalman["K"] = db.kalman["K"][..., :1]
+    with pytest.raises(dbm.ShapeError, match="kalman/K"):
+        db.validate()
+
+
+def test_info_command(saved, capsys):
+    from pwl.cli import main
+    assert main(["info", str(saved)]) == 0
+    out = capsys.readouterr().out
+    for s in ("pwl-gain-database v1", "trim grid: 3 x 4", "p1", "filled", "replaced", "q (tuners, 2)"):
+        assert s in out
+    assert main(["info", str(saved) + ".missing"]) == 2
