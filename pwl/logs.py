@@ -116,6 +116,25 @@ def read_log(path) -> Log:
         return _read_csv(path)
     if path.lower().endswith(".parquet"):
         return _read_parquet(path)
+    head = read_header(path)
+    log = read_rows(head, 0, len(head))
+    try:
+        with h5py.File(path, "r") as f:
+            if "truth" in f:
+                log.truth, log.truth_units = _read_group(f, "truth", len(head), path)
+    except OSError as e:
+        raise LogError(f"{path}: damaged log, cannot read /truth ({e})") from None
+    return log
+
+
+def read_header(path) -> Log:
+    """An HDF5 log's time, channel units and attributes, validated, without channel data.
+
+    With :func:`read_rows` this reads long logs in chunks with bounded memory.
+    """
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise LogError(f"{path}: no such file")
     try:
         f = h5py.File(path, "r")
     except OSError as e:
@@ -129,14 +148,29 @@ def read_log(path) -> Log:
             raise LogError(f"{path}: flight-log format version {ver} is newer than this pwl reads ({VERSION})")
         try:
             time = np.asarray(f["time"][()], dtype=np.float64)
-            chans, units = _read_group(f, "channels", time.size, path)
-            truth, tunits = _read_group(f, "truth", time.size, path) if "truth" in f else ({}, {})
+            if "channels" not in f:
+                raise LogError(f"{path}: group /channels is missing")
+            units = {}
+            for k, d in f["channels"].items():
+                if d.shape != time.shape:
+                    raise LogError(f"{path}: /channels/{k} has shape {d.shape}, expected {time.shape} like /time")
+                units[k] = attr_str(d, "unit", "")
         except (KeyError, OSError) as e:
             raise LogError(f"{path}: damaged or incomplete log ({e})") from None
         attrs = {k: attr_str(f, k) for k in f.attrs if k not in ("format", "format_version")}
     if time.size == 0:
         raise LogError(f"{path}: the log is empty (no samples)")
-    return Log(time, chans, units, truth, tunits, attrs, path)
+    return Log(time, {}, units, attrs=attrs, path=path)
+
+
+def read_rows(head: Log, a: int, b: int) -> Log:
+    """Samples a..b of every channel of the HDF5 log described by ``head`` (from read_header)."""
+    try:
+        with h5py.File(head.path, "r") as f:
+            chans = {k: np.asarray(f["channels"][k][a:b], dtype=np.float64) for k in head.units}
+    except (OSError, KeyError) as e:
+        raise LogError(f"{head.path}: damaged log, cannot read samples {a}..{b} ({e})") from None
+    return Log(head.time[a:b], chans, head.units, attrs=head.attrs, path=head.path)
 
 
 def _read_group(f, name, n, path):

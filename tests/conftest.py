@@ -2,6 +2,7 @@
 import numpy as np
 import pytest
 
+from linearize.kalman import steady_state_gain
 from pwl.database import Correction, GainDatabase
 from pwl.grid import Axis, Grid
 
@@ -34,12 +35,19 @@ def make_database(seed=0, nx=2, nu=1, ny=3, nz=2, nh=4, nq=2, trim_shape=(3, 4),
     dyn = {k: rng.normal(size=D + s) for k, s in mats.items()}
     dyn["A"] = 0.9 * np.eye(nx) + 0.02 * dyn["A"]
     V = rng.normal(size=(nq, nh))
+    Vp = np.linalg.pinv(V)
+    # stabilizing steady-state gains of the augmented systems (so closed loops stay bounded)
+    K = np.zeros(D + (na, ny))
+    for idx in np.ndindex(*D):
+        Aa = np.block([[dyn["A"][idx], dyn["L"][idx] @ Vp], [np.zeros((nq, nx)), np.eye(nq)]])
+        Ca = np.hstack([dyn["C"][idx], dyn["M"][idx] @ Vp])
+        K[idx] = steady_state_gain(Aa, Ca, np.eye(na) * 1e-2, np.eye(ny) * 1e-1)[0]
     db = GainDatabase(
         names=names, units=units, trim_grid=tg, dyn_grid=dg, trim=trim,
         trim_status=rng.integers(0, 3, T).astype(np.int8),
         dynamics=dyn, dyn_status=np.zeros(D, np.int8), dyn_donor=-np.ones(D, np.int64),
-        tuner={"V": V, "V_pinv": np.linalg.pinv(V), "h_ref": np.zeros(nh)},
-        kalman={"K": 0.1 * rng.normal(size=D + (na, ny)), "P": np.broadcast_to(np.eye(na), D + (na, na)).copy(),
+        tuner={"V": V, "V_pinv": Vp, "h_ref": np.zeros(nh)},
+        kalman={"K": K, "P": np.broadcast_to(np.eye(na), D + (na, na)).copy(),
                 "Q": np.broadcast_to(np.eye(na) * 1e-4, D + (na, na)).copy(),
                 "R": np.broadcast_to(np.eye(ny) * 1e-3, D + (ny, ny)).copy()},
         kalman_status=np.zeros(D, np.int8), kalman_donor=-np.ones(D, np.int64), dt=dt,

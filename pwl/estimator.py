@@ -1,0 +1,224 @@
+"""The estimator object: opens a gain database, checks logs, runs the numba filter.
+
+Batch ``run(log)`` and streaming ``step(sample)`` call the same kernel
+(:func:`pwl.runtime.filter_loop`), so their numbers are identical. ``run_file`` processes an
+HDF5 log in chunks with bounded memory and writes results as it goes.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .database import GainDatabase
+from .h5io import atomic_h5, write_strings
+from .logs import Log, read_header, read_log, read_rows
+from .runtime import (FLAG_DYN_OUTSIDE, FLAG_HELD_INPUT, FLAG_NO_UPDATE, FLAG_NOT_STARTED,
+                      FLAG_TRIM_OUTSIDE, PackedModel, filter_loop)
+
+OUTPUTS = ("x_hat", "q_hat", "h_hat", "y_hat", "residual", "z_hat")
+
+
+class EnvelopeError(ValueError):
+    """The operating point left the grid and the database's policy is ``error``."""
+
+
+@dataclass
+class Result:
+    """Estimates for one log: each output (n, k) in physical units, flags (n,) int64."""
+
+    time: np.ndarray
+    outputs: dict[str, np.ndarray]
+    flags: np.ndarray
+    names: dict[str, list[str]]
+    source: str = "<memory>"
+    attrs: dict = field(default_factory=dict)
+
+    def __getattr__(self, name):
+        if name in OUTPUTS:
+            return self.outputs[name]
+        raise AttributeError(name)
+
+    def channel(self, output: str, name: str) -> np.ndarray:
+        """One column, e.g. ``channel("z_hat", "T40")``."""
+        return self.outputs[output][:, self.names[output].index(name)]
+
+    def counts(self) -> dict:
+        f = self.flags
+        return {"samples": int(f.size),
+                "no_update": int(np.count_nonzero(f & FLAG_NO_UPDATE)),
+                "held_input": int(np.count_nonzero(f & FLAG_HELD_INPUT)),
+                "trim_outside": int(np.count_nonzero(f & FLAG_TRIM_OUTSIDE)),
+                "dyn_outside": int(np.count_nonzero(f & FLAG_DYN_OUTSIDE)),
+                "not_started": int(np.count_nonzero(f & FLAG_NOT_STARTED))}
+
+    def save(self, path) -> None:
+        """HDF5 (atomic) or, for a ``.csv`` path, CSV with ``output.name`` columns."""
+        if os.fspath(path).lower().endswith(".csv"):
+            cols = {"time": self.time, "flags": self.flags}
+            for o in OUTPUTS:
+                for j, n in enumerate(self.names[o]):
+                    cols[f"{o}.{n}"] = self.outputs[o][:, j]
+            from .logs import write_csv
+            write_csv(path, Log(self.time, {k: v for k, v in cols.items() if k != "time"}, {}, path=str(path)))
+            return
+        with atomic_h5(path) as f:
+            _init_result_file(f, self.names, self.source, self.counts(), 0)
+            _append(f, self.time, self.outputs, self.flags)
+
+
+def _init_result_file(f, names, source, counts, n):
+    f.attrs["format"] = "pwl-estimates"
+    f.attrs["format_version"] = 1
+    f.attrs["source"] = str(source)
+    f.create_dataset("time", shape=(n,), maxshape=(None,), dtype="f8", chunks=(8192,))
+    f.create_dataset("flags", shape=(n,), maxshape=(None,), dtype="i8", chunks=(8192,))
+    for o in OUTPUTS:
+        k = len(names[o])
+        f.create_dataset(o, shape=(n, k), maxshape=(None, k), dtype="f8", chunks=(8192, max(k, 1)))
+        write_strings(f.require_group("names"), o, names[o])
+    for k, v in counts.items():
+        f.attrs[k] = v
+
+
+def _append(f, time, outputs, flags):
+    n0 = f["time"].shape[0]
+    n1 = n0 + time.size
+    for name, data in [("time", time), ("flags", flags)] + [(o, outputs[o]) for o in OUTPUTS]:
+        d = f[name]
+        d.resize(n1, axis=0)
+        d[n0:n1] = data
+
+
+class Estimator:
+    """A piecewise-linear self-tuning model with its steady-state Kalman filter.
+
+    ``Estimator(db)`` with a :class:`GainDatabase` or a path. State persists across ``run`` /
+    ``step`` calls until :meth:`reset` (one flight = reset, then run).
+    """
+
+    def __init__(self, db, q0=None):
+        self.db = db if isinstance(db, GainDatabase) else GainDatabase.open(db)
+        self.pm = PackedModel.from_database(self.db)
+        db = self.db
+        self.names = {"x_hat": db.names["x"], "q_hat": db.names["q"], "h_hat": db.names["h"],
+                      "y_hat": db.names["y"], "residual": db.names["y"], "z_hat": db.names["z"]}
+        units = {n: u for k in "xuyz" for n, u in zip(db.names[k], db.units[k])}
+        for (c, corr, scale), pn, pu in zip(db.schedule, db.names["p"], db.units["p"]):
+            if not corr and scale == 1.0:
+                units.setdefault(c, pu)
+        self.channel_units = units
+        self.reset(q0)
+
+    # ---- state -------------------------------------------------------------------------------
+    def reset(self, q0=None) -> None:
+        """Forget the filter state: the next valid sample starts at trim with tuners q0 (default 0)."""
+        nx, nu, ny, nz, nq, nh = self.pm.dims
+        self.state = np.full(self.pm.state_size(), np.nan)
+        self.state[nx:nx + nq] = 0.0 if q0 is None else np.asarray(q0, dtype=np.float64)
+        self.state[-1] = 0.0
+        self.t_idx = np.zeros(len(self.pm.t_pidx), dtype=np.int64)
+        self.d_idx = np.zeros(len(self.pm.d_pidx), dtype=np.int64)
+
+    @property
+    def input_channels(self) -> list[str]:
+        """Log channels the filter reads: inputs, sensed outputs, schedule, theta, delta."""
+        ch = list(self.db.names["u"]) + list(self.db.names["y"]) + list(self.pm.schedule_channels)
+        if self.pm.theta_channel:
+            ch += [self.pm.theta_channel, self.pm.delta_channel]
+        return list(dict.fromkeys(ch))
+
+    # ---- core --------------------------------------------------------------------------------
+    def run_arrays(self, U, Y, S, TH=None, DE=None, time=None) -> Result:
+        """Run on arrays U (n, nu), Y (n, ny), S (n, ns) raw channels, TH/DE (n,) theta/delta."""
+        U, Y, S = (np.ascontiguousarray(np.atleast_2d(a), dtype=np.float64) for a in (U, Y, S))
+        n = U.shape[0]
+        one = np.ones(n)
+        TH = one if TH is None else np.ascontiguousarray(TH, dtype=np.float64)
+        DE = one if DE is None else np.ascontiguousarray(DE, dtype=np.float64)
+        nx, nu, ny, nz, nq, nh = self.pm.dims
+        out = {o: np.empty((n, len(self.names[o]))) for o in OUTPUTS}
+        flags = np.empty(n, dtype=np.int64)
+        tg, dg, pm, db = self.db.trim_grid, self.db.dyn_grid, self.pm, self.db
+        filter_loop(U, Y, S, TH, DE,
+                    pm.trim_tab, tg.bp, tg.off, tg.strides, pm.t_pidx,
+                    pm.dyn_tab, dg.bp, dg.off, dg.strides, pm.d_pidx, tg.extrapolate,
+                    pm.dims, pm.ex["x"], pm.ex["u"], pm.ex["y"], pm.ex["z"], pm.ex["s"],
+                    pm.s_scale, pm.s_corr, db.tuner["V_pinv"], db.tuner["h_ref"],
+                    self.state, self.t_idx, self.d_idx,
+                    out["x_hat"], out["q_hat"], out["h_hat"], out["y_hat"], out["residual"],
+                    out["z_hat"], flags)
+        t = np.arange(n, dtype=np.float64) * db.dt if time is None else np.asarray(time, dtype=np.float64)
+        return Result(t, out, flags, self.names)
+
+    def _split(self, log: Log, rows=slice(None)):
+        """The kernel's input arrays from a log (checks presence and units of every channel)."""
+        db, pm = self.db, self.pm
+        units = self.channel_units
+        def take(names):
+            return log.require(names, [units.get(n, "") for n in names])[rows]
+        U, Y, S = take(db.names["u"]), take(db.names["y"]), take(pm.schedule_channels)
+        if pm.theta_channel:
+            TD = take([pm.theta_channel, pm.delta_channel])
+            TH = TD[:, 0] / db.correction.T_std
+            DE = TD[:, 1] / db.correction.P_std
+        else:
+            TH = DE = None
+        return U, Y, S, TH, DE
+
+    def run(self, log, reset: bool = True) -> Result:
+        """Estimates for a whole log (a :class:`Log` or a path); resets the filter first by default."""
+        log = log if isinstance(log, Log) else read_log(log)
+        if reset:
+            self.reset()
+        res = self.run_arrays(*self._split(log), time=log.time)
+        res.source = log.path
+        self._check_envelope(res.flags, res.time, log.path)
+        return res
+
+    def step(self, sample: dict) -> dict:
+        """One sample (channel name -> value) -> estimates of this step (name -> value) and flags."""
+        log = Log(np.zeros(1), {k: np.array([float(v)]) for k, v in sample.items()}, {}, path="<sample>")
+        res = self.run_arrays(*self._split(log))
+        self._check_envelope(res.flags, res.time, "<sample>")
+        out = {o: dict(zip(self.names[o], res.outputs[o][0])) for o in OUTPUTS}
+        out["flags"] = int(res.flags[0])
+        return out
+
+    def _check_envelope(self, flags, time, where):
+        if self.db.policy != "error":
+            return
+        bad = np.flatnonzero(flags & (FLAG_TRIM_OUTSIDE | FLAG_DYN_OUTSIDE))
+        if bad.size:
+            i = int(bad[0])
+            raise EnvelopeError(f"{where}: operating point outside the database grid at sample {i} "
+                                f"(t = {time[i]:g} s) and the database's out-of-range policy is 'error'")
+
+    def run_file(self, log_path, out_path, chunk: int = 1 << 16) -> dict:
+        """Process one log file to one results file, chunk by chunk (bounded memory).
+
+        HDF5 logs are read ``chunk`` samples at a time; CSV/Parquet logs are read whole. Returns the
+        flag counts. The results file appears only when complete.
+        """
+        log_path = os.fspath(log_path)
+        self.reset()
+        if os.fspath(out_path).lower().endswith(".csv") or not log_path.lower().endswith((".h5", ".hdf5")):
+            res = self.run(log_path, reset=False)
+            res.save(out_path)
+            return res.counts()
+        head = read_header(log_path)
+        n = len(head)
+        counts = None
+        with atomic_h5(out_path) as f:
+            _init_result_file(f, self.names, log_path, {}, 0)
+            for a in range(0, n, chunk):
+                part = read_rows(head, a, min(n, a + chunk))
+                res = self.run_arrays(*self._split(part), time=part.time)
+                self._check_envelope(res.flags, res.time, log_path)
+                _append(f, res.time, res.outputs, res.flags)
+                c = res.counts()
+                counts = c if counts is None else {k: counts[k] + c[k] for k in c}
+            for k, v in counts.items():
+                f.attrs[k] = v
+        return counts

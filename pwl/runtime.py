@@ -1,0 +1,315 @@
+"""The piecewise-linear steady-state Kalman filter over logged data (numba core).
+
+Per step k (DESIGN.md section 3), everything in corrected units when the database has a
+parameter correction:
+
+    p_k        scheduling variables from the log (scale * channel, corrected where asked)
+    trims, A_a..G_a, K   interpolated at p_k: one search per grid, shared corner weights
+    dx'        = x_abs[k-1] - x_trim(p_k)              trim-shift adjustment (eq. 7)
+    xi_minus   = A_a [dx'; q] + B_a du,   du = u_k - u_trim(p_k)
+    y_hat      = y_trim + C_a xi_minus + D_a du
+    xi_plus    = xi_minus + K (y_k - y_hat)           (skipped when a measurement is NaN)
+    z_hat      = z_trim + F_a xi_plus + G_a du
+    h_hat      = h_ref + V_pinv q
+
+The filter keeps the absolute state x_abs = x_trim + dx, which is equivalent to the trim-shift
+adjustment. Inputs, schedule channels or theta/delta that are NaN are held at their last valid
+value (flagged); the first valid sample starts the filter at trim.
+
+Flags per step (bit mask): see ``FLAG_*``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from .database import GainDatabase
+from .grid import locate
+from .interp import corner_weights, interp_rows
+
+FLAG_NO_UPDATE = 1        # a measurement was NaN: prediction only
+FLAG_HELD_INPUT = 2       # an input, schedule or theta/delta channel was NaN: last value held
+FLAG_TRIM_OUTSIDE = 4     # the operating point left the trim grid (clipped or extrapolated)
+FLAG_DYN_OUTSIDE = 8      # the operating point left the dynamics grid
+FLAG_NOT_STARTED = 16     # no valid sample yet: outputs are NaN
+
+# layout of the per-filter state vector (float64): [x_abs (nx), q (nq), u_last (nu), s_last (ns),
+# theta_last, delta_last, started]
+
+
+@njit(cache=True, nogil=True)
+def _factor(e, j, lt, ld):
+    """theta^a delta^b of channel j from exponents e (n, 2) and lt = ln theta, ld = ln delta."""
+    a = e[j, 0]
+    b = e[j, 1]
+    if a == 0.0 and b == 0.0:
+        return 1.0
+    return math.exp(a * lt + b * ld)
+
+
+@njit(cache=True, nogil=True)
+def filter_loop(U, Y, S, TH, DE,
+                trim_tab, t_bp, t_off, t_str, t_pidx,
+                dyn_tab, d_bp, d_off, d_str, d_pidx, extrapolate,
+                dims, ex_x, ex_u, ex_y, ex_z, ex_s, s_scale, s_corr, V_pinv, h_ref,
+                state, t_idx, d_idx,
+                out_x, out_q, out_h, out_yhat, out_res, out_z, out_flags):
+    """Run the filter over n samples; state and search hints are updated in place (chunkable).
+
+    U (n, nu), Y (n, ny), S (n, ns) raw log channels; TH, DE (n,) theta and delta (ones when the
+    database has no correction). trim_tab (trim nodes, nx+nu+ny+nz), dyn_tab (dyn nodes, block)
+    packed as in :class:`PackedModel`. dims = [nx, nu, ny, nz, nq, nh]. Outputs (n, .) in
+    physical (uncorrected) units: x_hat, q_hat, h_hat, y_hat (a priori), residual y - y_hat,
+    z_hat (a posteriori); out_flags (n,) int64. Returns the number of samples processed.
+    """
+    nx, nu, ny, nz, nq, nh = dims[0], dims[1], dims[2], dims[3], dims[4], dims[5]
+    na = nx + nq
+    ns = S.shape[1]
+    n = U.shape[0]
+    # packed offsets (must match PackedModel)
+    oA = 0
+    oB = oA + na * na
+    oC = oB + na * nu
+    oD = oC + ny * na
+    oF = oD + ny * nu
+    oG = oF + nz * na
+    oK = oG + nz * nu
+    tx, tu, ty, tz = 0, nx, nx + nu, nx + nu + ny
+    # workspace, allocated once per call
+    tw = np.empty(trim_tab.shape[1])
+    dw = np.empty(dyn_tab.shape[1])
+    nt = t_pidx.shape[0]
+    nd = d_pidx.shape[0]
+    t_frac = np.empty(nt)
+    d_frac = np.empty(nd)
+    t_wts = np.empty(1 << nt)
+    t_rows = np.empty(1 << nt, dtype=np.int64)
+    d_wts = np.empty(1 << nd)
+    d_rows = np.empty(1 << nd, dtype=np.int64)
+    p = np.empty(ns)
+    pt = np.empty(nt)
+    pd = np.empty(nd)
+    du = np.empty(nu)
+    xi = np.empty(na)
+    xm = np.empty(na)
+    res = np.empty(ny)
+    ox = 0
+    oq = nx
+    ou = nx + nq
+    osl = ou + nu
+    oth = osl + ns
+    ode = oth + 1
+    ost = ode + 1
+    for k in range(n):
+        flags = 0
+        # ---- hold NaN inputs / schedule / theta, delta at their last valid values
+        for j in range(nu):
+            v = U[k, j]
+            if v != v:
+                flags |= FLAG_HELD_INPUT
+            else:
+                state[ou + j] = v
+        for j in range(ns):
+            v = S[k, j]
+            if v != v:
+                flags |= FLAG_HELD_INPUT
+            else:
+                state[osl + j] = v
+        if TH[k] != TH[k] or TH[k] <= 0.0:
+            flags |= FLAG_HELD_INPUT
+        else:
+            state[oth] = TH[k]
+        if DE[k] != DE[k] or DE[k] <= 0.0:
+            flags |= FLAG_HELD_INPUT
+        else:
+            state[ode] = DE[k]
+        ok = True
+        for j in range(ou, ost):
+            if state[j] != state[j]:
+                ok = False
+        if not ok:  # nothing valid yet to predict from
+            flags |= FLAG_NOT_STARTED
+            out_flags[k] = flags
+            for j in range(nx):
+                out_x[k, j] = np.nan
+            for j in range(nq):
+                out_q[k, j] = np.nan
+            for j in range(nh):
+                out_h[k, j] = np.nan
+            for j in range(ny):
+                out_yhat[k, j] = np.nan
+                out_res[k, j] = np.nan
+            for j in range(nz):
+                out_z[k, j] = np.nan
+            continue
+        lt = math.log(state[oth])
+        ld = math.log(state[ode])
+        # ---- scheduling variables and the two grid searches (shared weights)
+        for j in range(ns):
+            v = state[osl + j] * s_scale[j]
+            if s_corr[j]:
+                v /= _factor(ex_s, j, lt, ld)
+            p[j] = v
+        for j in range(nt):
+            pt[j] = p[t_pidx[j]]
+        for j in range(nd):
+            pd[j] = p[d_pidx[j]]
+        if locate(t_bp, t_off, pt, extrapolate, t_idx, t_frac) != 0:
+            flags |= FLAG_TRIM_OUTSIDE
+        if locate(d_bp, d_off, pd, extrapolate, d_idx, d_frac) != 0:
+            flags |= FLAG_DYN_OUTSIDE
+        m = corner_weights(t_idx, t_frac, t_str, t_wts, t_rows)
+        interp_rows(trim_tab, t_wts, t_rows, m, tw)
+        m = corner_weights(d_idx, d_frac, d_str, d_wts, d_rows)
+        interp_rows(dyn_tab, d_wts, d_rows, m, dw)
+        # ---- start at trim on the first valid sample
+        if state[ost] == 0.0:
+            for j in range(nx):
+                state[ox + j] = tw[tx + j]
+            state[ost] = 1.0
+        # ---- trim-shift adjustment and time update
+        for j in range(nx):
+            xi[j] = state[ox + j] - tw[tx + j]
+        for j in range(nq):
+            xi[nx + j] = state[oq + j]
+        for j in range(nu):
+            du[j] = state[ou + j] / _factor(ex_u, j, lt, ld) - tw[tu + j]
+        for i in range(na):
+            s = 0.0
+            for j in range(na):
+                s += dw[oA + i * na + j] * xi[j]
+            for j in range(nu):
+                s += dw[oB + i * nu + j] * du[j]
+            xm[i] = s
+        # ---- predicted measurements and residuals (corrected units)
+        update = True
+        for i in range(ny):
+            s = tw[ty + i]
+            for j in range(na):
+                s += dw[oC + i * na + j] * xm[j]
+            for j in range(nu):
+                s += dw[oD + i * nu + j] * du[j]
+            fy = _factor(ex_y, i, lt, ld)
+            yk = Y[k, i]
+            if yk != yk:
+                update = False
+                res[i] = 0.0
+                out_res[k, i] = np.nan
+            else:
+                res[i] = yk / fy - s
+                out_res[k, i] = yk - s * fy
+            out_yhat[k, i] = s * fy
+        if not update:
+            flags |= FLAG_NO_UPDATE
+        # ---- measurement update
+        for i in range(na):
+            s = xm[i]
+            if update:
+                for j in range(ny):
+                    s += dw[oK + i * ny + j] * res[j]
+            xi[i] = s
+        # ---- outputs
+        for i in range(nz):
+            s = tw[tz + i]
+            for j in range(na):
+                s += dw[oF + i * na + j] * xi[j]
+            for j in range(nu):
+                s += dw[oG + i * nu + j] * du[j]
+            out_z[k, i] = s * _factor(ex_z, i, lt, ld)
+        for j in range(nx):
+            xa = tw[tx + j] + xi[j]
+            state[ox + j] = xa
+            out_x[k, j] = xa * _factor(ex_x, j, lt, ld)
+        for j in range(nq):
+            state[oq + j] = xi[nx + j]
+            out_q[k, j] = xi[nx + j]
+        for i in range(nh):
+            s = h_ref[i]
+            for j in range(nq):
+                s += V_pinv[i, j] * xi[nx + j]
+            out_h[k, i] = s
+        out_flags[k] = flags
+    return n
+
+
+def augmented(db: GainDatabase):
+    """Augmented discrete matrices over the dynamics grid, each D + (rows, cols).
+
+    A_a = [[A, L V+], [0, I]], B_a = [[B], [0]], C_a = [C, M V+], D_a = D, F_a = [F, N V+], G_a = G.
+    """
+    d = db.dynamics
+    Vp = db.tuner["V_pinv"]
+    nx, nq = db.n("x"), db.n("q")
+    D = db.dyn_grid.shape
+    A_a = np.zeros(D + (nx + nq, nx + nq))
+    A_a[..., :nx, :nx] = d["A"]
+    A_a[..., :nx, nx:] = d["L"] @ Vp
+    A_a[..., nx:, nx:] = np.eye(nq)
+    B_a = np.zeros(D + (nx + nq, db.n("u")))
+    B_a[..., :nx, :] = d["B"]
+    C_a = np.concatenate([d["C"], d["M"] @ Vp], axis=-1)
+    F_a = np.concatenate([d["F"], d["N"] @ Vp], axis=-1)
+    return {"A": A_a, "B": B_a, "C": C_a, "D": d["D"], "F": F_a, "G": d["G"], "K": db.kalman["K"]}
+
+
+@dataclass
+class PackedModel:
+    """A database packed for the kernel: one contiguous row per grid node.
+
+    trim_tab: (trim nodes, nx+nu+ny+nz) = [x, u, y, z]; dyn_tab: (dyn nodes, block) =
+    [A_a, B_a, C_a, D_a, F_a, G_a, K] each row-major; the rest are the kernel's plain arrays.
+    """
+
+    trim_tab: np.ndarray
+    dyn_tab: np.ndarray
+    t_pidx: np.ndarray
+    d_pidx: np.ndarray
+    dims: np.ndarray
+    ex: dict
+    s_scale: np.ndarray
+    s_corr: np.ndarray
+    schedule_channels: list
+    theta_channel: str | None
+    delta_channel: str | None
+
+    @classmethod
+    def from_database(cls, db: GainDatabase) -> "PackedModel":
+        tg, dg = db.trim_grid, db.dyn_grid
+        trim_tab = np.ascontiguousarray(np.concatenate(
+            [db.trim[k].reshape(tg.size, -1) for k in "xuyz"], axis=1))
+        aug = augmented(db)
+        dyn_tab = np.ascontiguousarray(np.concatenate(
+            [aug[k].reshape(dg.size, -1) for k in ("A", "B", "C", "D", "F", "G", "K")], axis=1))
+        p = db.names["p"]
+        t_pidx = np.array([p.index(n) for n in tg.names], dtype=np.int64)
+        d_pidx = np.array([p.index(n) for n in dg.names], dtype=np.int64)
+        dims = np.array([db.n(k) for k in "xuyzqh"], dtype=np.int64)
+        zero = {k: np.zeros((db.n(k), 2)) for k in "xuyz"}
+        ex = {k: np.ascontiguousarray(v, dtype=np.float64) for k, v in
+              (db.correction.exponents if db.correction is not None else zero).items()}
+        # exponents of the schedule channels: from whichever kind names the channel
+        by_name = {}
+        for k in "xuyz":
+            for j, name in enumerate(db.names[k]):
+                by_name.setdefault(name, ex[k][j])
+        chans = [c for c, _, _ in db.schedule]
+        s_corr = np.array([bool(c) for _, c, _ in db.schedule])
+        ex_s = np.zeros((len(chans), 2))
+        for j, (c, corr, _) in enumerate(db.schedule):
+            if corr:
+                if c not in by_name:
+                    raise ValueError(f"{db.path}: scheduling channel {c!r} is marked corrected but has "
+                                     f"no correction exponents")
+                ex_s[j] = by_name[c]
+        ex["s"] = ex_s
+        return cls(trim_tab, dyn_tab, t_pidx, d_pidx, dims, ex,
+                   np.array([float(s) for _, _, s in db.schedule]), s_corr, chans,
+                   db.correction.theta_channel if db.correction else None,
+                   db.correction.delta_channel if db.correction else None)
+
+    def state_size(self) -> int:
+        nx, nu, ny, nz, nq, nh = self.dims
+        return int(nx + nq + nu + len(self.schedule_channels) + 3)
