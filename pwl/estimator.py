@@ -144,7 +144,7 @@ class Estimator:
         filter_loop(U, Y, S, TH, DE,
                     pm.trim_tab, tg.bp, tg.off, tg.strides, pm.t_pidx,
                     pm.dyn_tab, dg.bp, dg.off, dg.strides, pm.d_pidx, tg.extrapolate,
-                    pm.dims, pm.ex["x"], pm.ex["u"], pm.ex["y"], pm.ex["z"], pm.ex["s"],
+                    pm.dims, pm.ex, pm.cls,
                     pm.s_scale, pm.s_corr, db.tuner["V_pinv"], db.tuner["h_ref"],
                     self.state, self.t_idx, self.d_idx,
                     out["x_hat"], out["q_hat"], out["h_hat"], out["y_hat"], out["residual"],
@@ -222,3 +222,57 @@ class Estimator:
             for k, v in counts.items():
                 f.attrs[k] = v
         return counts
+
+
+# ---- many logs ---------------------------------------------------------------------------------
+_worker_est = None
+
+
+def _init_worker(db_path):
+    global _worker_est
+    _worker_est = Estimator(db_path)
+
+
+def _run_one(log_path, out_path):
+    try:
+        return log_path, out_path, _worker_est.run_file(log_path, out_path), None
+    except Exception as e:  # one bad log must not lose the others: report it, go on
+        return log_path, out_path, None, f"{type(e).__name__}: {e}"
+
+
+def output_path(log_path, outdir, csv: bool = False) -> str:
+    base = os.path.splitext(os.path.basename(os.fspath(log_path)))[0]
+    return os.path.join(os.fspath(outdir), base + (".estimates.csv" if csv else ".estimates.h5"))
+
+
+def run_many(db_path, log_paths, outdir, workers: int | None = None, csv: bool = False,
+             progress=None):
+    """Estimate every log into ``outdir`` (one results file per log), in parallel processes.
+
+    Returns a list of (log, output, counts or None, error message or None) in input order; a log
+    that fails is reported and the others still complete. ``progress(done, total, item)`` is
+    called after each log.
+    """
+    from concurrent.futures import ProcessPoolExecutor
+
+    os.makedirs(outdir, exist_ok=True)
+    logs = [os.fspath(p) for p in log_paths]
+    outs = [output_path(p, outdir, csv) for p in logs]
+    if len(set(outs)) != len(outs):
+        raise ValueError("two logs have the same file name; their results would overwrite each other")
+    workers = max(1, min(len(logs), workers or os.cpu_count() or 1))
+    results = []
+    if workers == 1:
+        _init_worker(db_path)
+        for i, (lg, out) in enumerate(zip(logs, outs)):
+            results.append(_run_one(lg, out))
+            if progress:
+                progress(i + 1, len(logs), results[-1])
+        return results
+    with ProcessPoolExecutor(workers, initializer=_init_worker, initargs=(os.fspath(db_path),)) as ex:
+        futs = [ex.submit(_run_one, lg, out) for lg, out in zip(logs, outs)]
+        for i, fut in enumerate(futs):
+            results.append(fut.result())
+            if progress:
+                progress(i + 1, len(logs), results[-1])
+    return results

@@ -41,27 +41,42 @@ FLAG_NOT_STARTED = 16     # no valid sample yet: outputs are NaN
 
 
 @njit(cache=True, nogil=True)
-def _factor(e, j, lt, ld):
-    """theta^a delta^b of channel j from exponents e (n, 2) and lt = ln theta, ld = ln delta."""
-    a = e[j, 0]
-    b = e[j, 1]
-    if a == 0.0 and b == 0.0:
+def _power(v, a):
+    """v**a with the exponents of parameter correction (0, 1/2, 1, 3/2, ...) done without pow."""
+    if a == 0.0:
         return 1.0
-    return math.exp(a * lt + b * ld)
+    if a == 1.0:
+        return v
+    if a == 0.5:
+        return math.sqrt(v)
+    if a == -0.5:
+        return 1.0 / math.sqrt(v)
+    if a == 1.5:
+        return v * math.sqrt(v)
+    return v ** a
+
+
+@njit(cache=True, nogil=True)
+def correction_factors(ex, theta, delta, fac):
+    """fac[c] = theta^a_c delta^b_c for every distinct exponent pair ex[c] = (a_c, b_c)."""
+    for c in range(ex.shape[0]):
+        fac[c] = _power(theta, ex[c, 0]) * _power(delta, ex[c, 1])
 
 
 @njit(cache=True, nogil=True)
 def filter_loop(U, Y, S, TH, DE,
                 trim_tab, t_bp, t_off, t_str, t_pidx,
                 dyn_tab, d_bp, d_off, d_str, d_pidx, extrapolate,
-                dims, ex_x, ex_u, ex_y, ex_z, ex_s, s_scale, s_corr, V_pinv, h_ref,
+                dims, ex, cls, s_scale, s_corr, V_pinv, h_ref,
                 state, t_idx, d_idx,
                 out_x, out_q, out_h, out_yhat, out_res, out_z, out_flags):
     """Run the filter over n samples; state and search hints are updated in place (chunkable).
 
     U (n, nu), Y (n, ny), S (n, ns) raw log channels; TH, DE (n,) theta and delta (ones when the
     database has no correction). trim_tab (trim nodes, nx+nu+ny+nz), dyn_tab (dyn nodes, block)
-    packed as in :class:`PackedModel`. dims = [nx, nu, ny, nz, nq, nh]. Outputs (n, .) in
+    packed as in :class:`PackedModel`. dims = [nx, nu, ny, nz, nq, nh]. Parameter correction:
+    ex (nc, 2) the distinct exponent pairs, cls (nx+nu+ny+nz+ns,) int64 the pair of every channel
+    in the order x, u, y, z, schedule (pair 0 is (0, 0)). Outputs (n, .) in
     physical (uncorrected) units: x_hat, q_hat, h_hat, y_hat (a priori), residual y - y_hat,
     z_hat (a posteriori); out_flags (n,) int64. Returns the number of samples processed.
     """
@@ -96,6 +111,10 @@ def filter_loop(U, Y, S, TH, DE,
     xi = np.empty(na)
     xm = np.empty(na)
     res = np.empty(ny)
+    fac = np.ones(ex.shape[0])
+    cx, cu, cy, cz, cs = 0, nx, nx + nu, nx + nu + ny, nx + nu + ny + nz
+    th_prev = -1.0
+    de_prev = -1.0
     ox = 0
     oq = nx
     ou = nx + nq
@@ -145,13 +164,15 @@ def filter_loop(U, Y, S, TH, DE,
             for j in range(nz):
                 out_z[k, j] = np.nan
             continue
-        lt = math.log(state[oth])
-        ld = math.log(state[ode])
+        if state[oth] != th_prev or state[ode] != de_prev:
+            th_prev = state[oth]
+            de_prev = state[ode]
+            correction_factors(ex, th_prev, de_prev, fac)
         # ---- scheduling variables and the two grid searches (shared weights)
         for j in range(ns):
             v = state[osl + j] * s_scale[j]
             if s_corr[j]:
-                v /= _factor(ex_s, j, lt, ld)
+                v /= fac[cls[cs + j]]
             p[j] = v
         for j in range(nt):
             pt[j] = p[t_pidx[j]]
@@ -176,7 +197,7 @@ def filter_loop(U, Y, S, TH, DE,
         for j in range(nq):
             xi[nx + j] = state[oq + j]
         for j in range(nu):
-            du[j] = state[ou + j] / _factor(ex_u, j, lt, ld) - tw[tu + j]
+            du[j] = state[ou + j] / fac[cls[cu + j]] - tw[tu + j]
         for i in range(na):
             s = 0.0
             for j in range(na):
@@ -192,7 +213,7 @@ def filter_loop(U, Y, S, TH, DE,
                 s += dw[oC + i * na + j] * xm[j]
             for j in range(nu):
                 s += dw[oD + i * nu + j] * du[j]
-            fy = _factor(ex_y, i, lt, ld)
+            fy = fac[cls[cy + i]]
             yk = Y[k, i]
             if yk != yk:
                 update = False
@@ -218,11 +239,11 @@ def filter_loop(U, Y, S, TH, DE,
                 s += dw[oF + i * na + j] * xi[j]
             for j in range(nu):
                 s += dw[oG + i * nu + j] * du[j]
-            out_z[k, i] = s * _factor(ex_z, i, lt, ld)
+            out_z[k, i] = s * fac[cls[cz + i]]
         for j in range(nx):
             xa = tw[tx + j] + xi[j]
             state[ox + j] = xa
-            out_x[k, j] = xa * _factor(ex_x, j, lt, ld)
+            out_x[k, j] = xa * fac[cls[cx + j]]
         for j in range(nq):
             state[oq + j] = xi[nx + j]
             out_q[k, j] = xi[nx + j]
@@ -268,7 +289,8 @@ class PackedModel:
     t_pidx: np.ndarray
     d_pidx: np.ndarray
     dims: np.ndarray
-    ex: dict
+    ex: np.ndarray
+    cls: np.ndarray
     s_scale: np.ndarray
     s_corr: np.ndarray
     schedule_channels: list
@@ -288,8 +310,7 @@ class PackedModel:
         d_pidx = np.array([p.index(n) for n in dg.names], dtype=np.int64)
         dims = np.array([db.n(k) for k in "xuyzqh"], dtype=np.int64)
         zero = {k: np.zeros((db.n(k), 2)) for k in "xuyz"}
-        ex = {k: np.ascontiguousarray(v, dtype=np.float64) for k, v in
-              (db.correction.exponents if db.correction is not None else zero).items()}
+        ex = db.correction.exponents if db.correction is not None else zero
         # exponents of the schedule channels: from whichever kind names the channel
         by_name = {}
         for k in "xuyz":
@@ -304,8 +325,10 @@ class PackedModel:
                     raise ValueError(f"{db.path}: scheduling channel {c!r} is marked corrected but has "
                                      f"no correction exponents")
                 ex_s[j] = by_name[c]
-        ex["s"] = ex_s
-        return cls(trim_tab, dyn_tab, t_pidx, d_pidx, dims, ex,
+        every = np.concatenate([ex[k] for k in "xuyz"] + [ex_s]).astype(np.float64)
+        pairs = [(0.0, 0.0)] + sorted({tuple(e) for e in every} - {(0.0, 0.0)})
+        classes = np.array([pairs.index(tuple(e)) for e in every], dtype=np.int64)
+        return cls(trim_tab, dyn_tab, t_pidx, d_pidx, dims, np.array(pairs, dtype=np.float64), classes,
                    np.array([float(s) for _, _, s in db.schedule]), s_corr, chans,
                    db.correction.theta_channel if db.correction else None,
                    db.correction.delta_channel if db.correction else None)

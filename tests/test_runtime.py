@@ -203,3 +203,21 @@ def test_empty_and_truncated_logs(tmp_path):
         est.run(tmp_path / "trunc.h5")
     with pytest.raises(LogError, match="no such file"):
         est.run(tmp_path / "nope.h5")
+
+
+def test_many_logs_one_bad_does_not_lose_others(tmp_path):
+    db = names_db()
+    db.save(tmp_path / "db.h5")
+    for i in range(3):
+        write_log(tmp_path / f"f{i}.h5", full_log(db, n=200, seed=i))
+    (tmp_path / "f3.h5").write_text("garbage")
+    from pwl.cli import main
+    rc = main(["run", str(tmp_path / "db.h5"), str(tmp_path / "f0.h5"), str(tmp_path / "f1.h5"),
+               str(tmp_path / "f3.h5"), str(tmp_path / "f2.h5"), "-o", str(tmp_path / "out"), "-j", "2"])
+    assert rc == 1
+    import h5py
+    est = Estimator(tmp_path / "db.h5")
+    for i in range(3):
+        with h5py.File(tmp_path / "out" / f"f{i}.estimates.h5") as f:
+            np.testing.assert_array_equal(f["z_hat"][()], est.run(tmp_path / f"f{i}.h5").z_hat)
+    assert not (tmp_path / "out" / "f3.estimates.h5").exists()

@@ -1,0 +1,53 @@
+"""pwl run DB.h5 LOG... -o OUTDIR: estimates for every log, one results file per log."""
+import glob
+import os
+import sys
+import time
+
+HELP = "run the piecewise-linear Kalman filter over flight logs (HDF5, CSV, Parquet)"
+
+
+def add_arguments(p):
+    p.add_argument("database", help="gain database (HDF5)")
+    p.add_argument("logs", nargs="+", help="log files or folders (every .h5/.csv/.parquet inside)")
+    p.add_argument("-o", "--outdir", required=True, help="folder for the results")
+    p.add_argument("--csv", action="store_true", help="write CSV results instead of HDF5")
+    p.add_argument("-j", "--workers", type=int, default=None, help="parallel processes (default: cores)")
+
+
+def expand(paths):
+    out = []
+    for p in paths:
+        if os.path.isdir(p):
+            out += sorted(f for ext in ("h5", "hdf5", "csv", "parquet")
+                          for f in glob.glob(os.path.join(p, f"*.{ext}")))
+        else:
+            out.append(p)
+    return out
+
+
+def run(args) -> int:
+    from ..database import GainDatabase
+    from ..estimator import run_many
+
+    GainDatabase.open(args.database)  # fail early, with the named error, on a bad database
+    logs = expand(args.logs)
+    if not logs:
+        print("pwl run: no logs found", file=sys.stderr)
+        return 2
+    t0 = time.perf_counter()
+
+    def progress(done, total, item):
+        log, out, counts, err = item
+        status = f"error: {err}" if err else (
+            f"{counts['samples']} samples, {counts['no_update']} without update, "
+            f"{counts['trim_outside']} outside the grid -> {out}")
+        print(f"[{done}/{total}] {log}: {status}", file=sys.stderr, flush=True)
+
+    results = run_many(args.database, logs, args.outdir, args.workers, args.csv, progress)
+    failed = [r for r in results if r[3]]
+    n = sum(r[2]["samples"] for r in results if r[2])
+    dt = time.perf_counter() - t0
+    print(f"{len(results) - len(failed)} of {len(results)} logs done, {n} samples in {dt:.2f} s "
+          f"({n / dt:,.0f} samples/s including start-up and I/O)")
+    return 1 if failed else 0
