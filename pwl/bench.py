@@ -81,3 +81,48 @@ def bench_interp(n_points: int = 200_000, block: int = 200, shape=(9, 7, 5), see
     res["ratio_vs_rgi_single"] = res["pwl_per_s_walk"] / res["rgi_per_s_single"]
     res["ratio_vs_rgi_vectorised"] = res["pwl_per_s_walk"] / res["rgi_per_s_vectorised"]
     return res
+
+
+def demo_paths():
+    """The shipped demo database and sample logs (in the repository's data/ folder)."""
+    import os
+    data = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "data")
+    return (os.path.join(data, "turbofan_demo.h5"),
+            [os.path.join(data, f"flight_{k}.h5") for k in ("new", "degraded")])
+
+
+def bench_run(db_path=None, log_path=None, n_ref: int = 2000) -> dict:
+    """Steps per second of the numba runtime on a whole log versus the plain numpy +
+    RegularGridInterpolator reference (:mod:`pwl.reference`) on its first ``n_ref`` samples,
+    in the same run; also their largest difference on those samples."""
+    from .estimator import Estimator
+    from .logs import read_log
+    from .reference import ReferenceFilter
+
+    d_db, d_logs = demo_paths()
+    est = Estimator(db_path or d_db)
+    log = read_log(log_path or d_logs[-1])
+    U, Y, S, TH, DE = est._split(log)
+    one = np.ones(len(log))
+    TH = one if TH is None else TH
+    DE = one if DE is None else DE
+    n = len(log)
+    est.run_arrays(U[:10], Y[:10], S[:10], TH[:10], DE[:10])  # compile / load from cache
+
+    def go():
+        est.reset()
+        est.run_arrays(U, Y, S, TH, DE)
+    t = _best_of(go)
+    ref = ReferenceFilter(est.db)
+    m = min(n_ref, n)
+    t0 = time.perf_counter()
+    r = ref.run(U[:m], Y[:m], S[:m], TH[:m], DE[:m])
+    t_ref = time.perf_counter() - t0
+    est.reset()
+    got = est.run_arrays(U[:m], Y[:m], S[:m], TH[:m], DE[:m])
+    diff = max(float(np.max(np.abs(got.outputs[o] - r[o]) / (1.0 + np.abs(r[o])))) for o in r)
+    dt = est.db.dt
+    return {"database": est.db.path, "log": log.path, "samples": n,
+            "pwl_steps_per_s": n / t, "x_real_time": n / t * dt,
+            "reference_steps_per_s": m / t_ref, "ratio": (n / t) / (m / t_ref),
+            "max_rel_diff_vs_reference": diff}
