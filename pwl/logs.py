@@ -68,8 +68,12 @@ class Log:
         return out
 
 
-def write_log(path, log: Log) -> None:
-    """Write ``log`` as HDF5 (atomically); ``.csv`` paths go to :func:`write_csv`."""
+def write_log(path, log: Log, compact: bool = False) -> None:
+    """Write ``log`` as HDF5 (atomically); ``.csv`` paths go to :func:`write_csv`.
+
+    ``compact`` stores channels as float32 with shuffle + gzip (for shipped sample data: sensor
+    values need no more than float32's 7 digits); the reader always returns float64.
+    """
     if os.fspath(path).lower().endswith(".csv"):
         return write_csv(path, log)
     n = len(log)
@@ -88,7 +92,11 @@ def write_log(path, log: Log) -> None:
                 v = np.asarray(v, dtype=np.float64)
                 if v.shape != (n,):
                     raise LogError(f"{path}: channel {name!r} has shape {v.shape}, expected ({n},)")
-                d = g.create_dataset(name, data=v, chunks=True if n > 4096 else None)
+                if compact:
+                    d = g.create_dataset(name, data=v.astype(np.float32), shuffle=True,
+                                         compression="gzip", compression_opts=6)
+                else:
+                    d = g.create_dataset(name, data=v, chunks=True if n > 4096 else None)
                 d.attrs["unit"] = units.get(name, "")
 
 

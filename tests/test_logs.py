@@ -1,0 +1,76 @@
+"""Flight-log files: HDF5 and CSV round trips, compact storage, named errors."""
+import h5py
+import numpy as np
+import pytest
+
+from pwl.logs import Log, LogError, read_header, read_log, read_rows, write_log
+
+
+def sample_log(n=500):
+    rng = np.random.default_rng(3)
+    return Log(np.arange(n) * 0.015, {"Nf": 3000 + rng.normal(0, 5, n), "T48": 900 + rng.random(n)},
+               {"Nf": "rpm", "T48": "K"}, {"Fn": rng.random(n)}, {"Fn": "N"}, {"dt": 0.015, "seed": 3})
+
+
+def test_hdf5_and_csv_round_trip_exact(tmp_path):
+    log = sample_log()
+    for name in ("a.h5", "a.csv"):
+        write_log(tmp_path / name, log)
+        back = read_log(tmp_path / name)
+        np.testing.assert_array_equal(back.time, log.time)
+        for k in log.channels:
+            np.testing.assert_array_equal(back.channels[k], log.channels[k])
+            assert back.units[k] == log.units[k]
+        np.testing.assert_array_equal(back.truth["Fn"], log.truth["Fn"])
+        assert back.truth_units["Fn"] == "N"
+
+
+def test_compact_is_float32_exact_and_smaller(tmp_path):
+    log = sample_log(20000)
+    write_log(tmp_path / "full.h5", log)
+    write_log(tmp_path / "small.h5", log, compact=True)
+    back = read_log(tmp_path / "small.h5")
+    for k in log.channels:
+        np.testing.assert_array_equal(back.channels[k], log.channels[k].astype(np.float32).astype(np.float64))
+    assert (tmp_path / "small.h5").stat().st_size < 0.6 * (tmp_path / "full.h5").stat().st_size
+
+
+def test_chunked_reading_equals_whole(tmp_path):
+    log = sample_log(1000)
+    write_log(tmp_path / "a.h5", log)
+    head = read_header(tmp_path / "a.h5")
+    parts = [read_rows(head, a, min(1000, a + 300)) for a in range(0, 1000, 300)]
+    np.testing.assert_array_equal(np.concatenate([p.channels["Nf"] for p in parts]), log.channels["Nf"])
+
+
+def test_require_names_missing_channel_and_units(tmp_path):
+    log = sample_log(10)
+    with pytest.raises(LogError, match="'Wf' is missing"):
+        log.require(["Nf", "Wf"])
+    with pytest.raises(LogError, match="'T48' has unit 'K', expected 'degC'"):
+        log.require(["T48"], ["degC"])
+
+
+def test_foreign_and_damaged_hdf5(tmp_path):
+    with h5py.File(tmp_path / "x.h5", "w") as f:
+        f["a"] = 1
+    with pytest.raises(LogError, match="not a flight log"):
+        read_log(tmp_path / "x.h5")
+    write_log(tmp_path / "b.h5", sample_log())
+    with h5py.File(tmp_path / "b.h5", "r+") as f:
+        del f["channels/Nf"]
+        f["channels/Nf"] = np.zeros(3)
+    with pytest.raises(LogError, match="/channels/Nf has shape"):
+        read_log(tmp_path / "b.h5")
+
+
+def test_csv_errors(tmp_path):
+    (tmp_path / "bad.csv").write_text("time[s],Nf[rpm]\n0,1\n0.1,abc\n")
+    with pytest.raises(LogError, match="bad.csv.*non-numeric"):
+        read_log(tmp_path / "bad.csv")
+    (tmp_path / "ragged.csv").write_text("time[s],Nf[rpm]\n0,1\n0.1\n")
+    with pytest.raises(LogError, match="row 3"):
+        read_log(tmp_path / "ragged.csv")
+    (tmp_path / "notime.csv").write_text("Nf[rpm]\n1\n")
+    with pytest.raises(LogError, match="no 'time' column"):
+        read_log(tmp_path / "notime.csv")
