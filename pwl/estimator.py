@@ -95,12 +95,13 @@ class Estimator:
     """A piecewise-linear self-tuning model with its steady-state Kalman filter.
 
     ``Estimator(db)`` with a :class:`GainDatabase` or a path. State persists across ``run`` /
-    ``step`` calls until :meth:`reset` (one flight = reset, then run).
+    ``step`` calls until :meth:`reset` (one flight = reset, then run). ``tune=False`` gives the
+    untuned model (tuners held at ``q0``, default 0: nominal health).
     """
 
-    def __init__(self, db, q0=None):
+    def __init__(self, db, q0=None, tune: bool = True):
         self.db = db if isinstance(db, GainDatabase) else GainDatabase.open(db)
-        self.pm = PackedModel.from_database(self.db)
+        self.pm = PackedModel.from_database(self.db, tune=tune)
         db = self.db
         self.names = {"x_hat": db.names["x"], "q_hat": db.names["q"], "h_hat": db.names["h"],
                       "y_hat": db.names["y"], "residual": db.names["y"], "z_hat": db.names["z"]}

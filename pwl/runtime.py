@@ -298,11 +298,16 @@ class PackedModel:
     delta_channel: str | None
 
     @classmethod
-    def from_database(cls, db: GainDatabase) -> "PackedModel":
+    def from_database(cls, db: GainDatabase, tune: bool = True) -> "PackedModel":
+        """Pack ``db``; ``tune=False`` zeroes the tuner rows of K: the untuned model (states are
+        still filtered, the tuners stay at their initial value)."""
         tg, dg = db.trim_grid, db.dyn_grid
         trim_tab = np.ascontiguousarray(np.concatenate(
             [db.trim[k].reshape(tg.size, -1) for k in "xuyz"], axis=1))
         aug = augmented(db)
+        if not tune:
+            aug["K"] = aug["K"].copy()
+            aug["K"][..., db.n("x"):, :] = 0.0
         dyn_tab = np.ascontiguousarray(np.concatenate(
             [aug[k].reshape(dg.size, -1) for k in ("A", "B", "C", "D", "F", "G", "K")], axis=1))
         p = db.names["p"]

@@ -221,3 +221,12 @@ def test_many_logs_one_bad_does_not_lose_others(tmp_path):
         with h5py.File(tmp_path / "out" / f"f{i}.estimates.h5") as f:
             np.testing.assert_array_equal(f["z_hat"][()], est.run(tmp_path / f"f{i}.h5").z_hat)
     assert not (tmp_path / "out" / "f3.estimates.h5").exists()
+
+
+def test_untuned_model_keeps_tuners_fixed():
+    db = names_db()
+    U, Y, S, TH, DE = inputs(db, n=50)
+    r = Estimator(db, tune=False, q0=[0.5, -0.25]).run_arrays(U, Y, S, TH, DE)
+    np.testing.assert_allclose(r.q_hat, np.tile([0.5, -0.25], (50, 1)), rtol=1e-14)
+    tuned = Estimator(db).run_arrays(U, Y, S, TH, DE)
+    assert np.abs(tuned.q_hat[-1]).max() > 1e-3
