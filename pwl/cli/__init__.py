@@ -17,6 +17,7 @@ COMMANDS = {
     "validate": "pwl.cli.validate",
     "run": "pwl.cli.run",
     "demo": "pwl.cli.demo",
+    "trend": "pwl.cli.trend",
 }
 
 
