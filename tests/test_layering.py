@@ -1,0 +1,31 @@
+"""The dependency direction of DESIGN.md: pwl core never imports linearize, models, scipy or control."""
+import pkgutil
+import subprocess
+import sys
+
+import pwl
+
+
+def core_modules():
+    return sorted(m.name for m in pkgutil.walk_packages(pwl.__path__, "pwl.")
+                  if not m.name.startswith(("pwl.cli", "pwl.bench", "pwl.reference")))
+
+
+def test_core_imports_only_numpy_numba_h5py():
+    mods = core_modules()
+    assert "pwl.runtime" in mods and "pwl.database" in mods
+    code = ("import sys\n"
+            + "".join(f"import {m}\n" for m in mods)
+            + "bad = [m for m in ('linearize', 'models', 'scipy', 'control', 'matplotlib') if m in sys.modules]\n"
+            + "print(','.join(bad))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "", f"pwl core pulled in: {out.stdout.strip()}"
+
+
+def test_models_import_neither_pwl_nor_linearize():
+    import models
+    mods = sorted(m.name for m in pkgutil.walk_packages(models.__path__, "models."))
+    code = ("import sys\n" + "".join(f"import {m}\n" for m in mods)
+            + "print(','.join(m for m in ('pwl', 'linearize') if m in sys.modules))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "", f"models pulled in: {out.stdout.strip()}"
