@@ -256,24 +256,33 @@ def filter_loop(U, Y, S, TH, DE,
     return n
 
 
-def augmented(db: GainDatabase):
-    """Augmented discrete matrices over the dynamics grid, each D + (rows, cols).
+def augment(d: dict, V_pinv: np.ndarray) -> dict:
+    """The augmented discrete system of DESIGN.md section 3 (the one definition of it).
 
+    ``d`` maps A..N to arrays of shape S + (rows, cols) for any leading shape S (one point: S = ());
+    ``V_pinv`` is (nh, nq). Returns A, B, C, D, F, G of the augmented state [dx; q]:
     A_a = [[A, L V+], [0, I]], B_a = [[B], [0]], C_a = [C, M V+], D_a = D, F_a = [F, N V+], G_a = G.
     """
-    d = db.dynamics
-    Vp = db.tuner["V_pinv"]
-    nx, nq = db.n("x"), db.n("q")
-    D = db.dyn_grid.shape
-    A_a = np.zeros(D + (nx + nq, nx + nq))
-    A_a[..., :nx, :nx] = d["A"]
-    A_a[..., :nx, nx:] = d["L"] @ Vp
+    A = np.asarray(d["A"])
+    S, nx = A.shape[:-2], A.shape[-1]
+    nq = V_pinv.shape[1]
+    A_a = np.zeros(S + (nx + nq, nx + nq))
+    A_a[..., :nx, :nx] = A
+    A_a[..., :nx, nx:] = d["L"] @ V_pinv
     A_a[..., nx:, nx:] = np.eye(nq)
-    B_a = np.zeros(D + (nx + nq, db.n("u")))
-    B_a[..., :nx, :] = d["B"]
-    C_a = np.concatenate([d["C"], d["M"] @ Vp], axis=-1)
-    F_a = np.concatenate([d["F"], d["N"] @ Vp], axis=-1)
-    return {"A": A_a, "B": B_a, "C": C_a, "D": d["D"], "F": F_a, "G": d["G"], "K": db.kalman["K"]}
+    B = np.asarray(d["B"])
+    B_a = np.zeros(S + (nx + nq, B.shape[-1]))
+    B_a[..., :nx, :] = B
+    C_a = np.concatenate([d["C"], d["M"] @ V_pinv], axis=-1)
+    F_a = np.concatenate([d["F"], d["N"] @ V_pinv], axis=-1)
+    return {"A": A_a, "B": B_a, "C": C_a, "D": np.asarray(d["D"]), "F": F_a, "G": np.asarray(d["G"])}
+
+
+def augmented(db: GainDatabase):
+    """Augmented matrices over the dynamics grid (each D + (rows, cols)) and the stored gain K."""
+    out = augment(db.dynamics, db.tuner["V_pinv"])
+    out["K"] = db.kalman["K"]
+    return out
 
 
 @dataclass

@@ -18,6 +18,9 @@ COMMANDS = {
     "run": "pwl.cli.run",
     "demo": "pwl.cli.demo",
     "trend": "pwl.cli.trend",
+    "tables": "pwl.cli.tables",
+    "zones": "pwl.cli.zones",
+    "bias": "pwl.cli.bias",
 }
 
 
