@@ -1,0 +1,517 @@
+"""Build a gain database from a plant and a build spec (DESIGN.md section 2).
+
+Phases, each over grid points in parallel through a ``concurrent.futures.Executor``:
+
+1. trims on the trim grid, one task per line along the power axis (warm-started from the top of
+   the line down); failed trims are filled by linear interpolation along the power axis between
+   the nearest good neighbours, extrapolated linearly where not bounded (status 1 / 2);
+2. at every dynamics grid point: trim, perturbation Jacobians A..N, zero-order hold, parameter
+   correction; a failed point is replaced by the nearest good point (normalised scheduling
+   distance), its donor recorded;
+3. tuner selection (subset, optionally refined to optimal tuners) by covariance analysis;
+4. the steady-state update gain of the augmented system at every dynamics point; failed points
+   replaced by the nearest good one.
+
+Per-task results of phases 1-2 are kept in ``<output>.parts/`` as they arrive, so a build that is
+interrupted and started again reuses them; the folder is removed after a successful save.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import sys
+import time
+from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
+
+import numpy as np
+
+from pwl.database import COMPUTED, EXTRAPOLATED, FILLED, REPLACED, Correction, GainDatabase
+from pwl.runtime import augment
+
+from . import plant as proto
+from .jacobian import correct, discretize, jacobians
+from .kalman import GainError, steady_state_gain
+from .spec import BuildSpec, SpecError, per_channel
+from .tuners import optimal_tuners, select_subset
+
+
+class BuildError(RuntimeError):
+    """A build that cannot produce a valid database (names the phase and the points)."""
+
+
+# ---- executors ----------------------------------------------------------------------------------
+class SerialExecutor(Executor):
+    """Runs every task at once in this process (tests, debugging, plants that cannot be pickled)."""
+
+    def submit(self, fn, /, *args, **kwargs):
+        fut = Future()
+        try:
+            fut.set_result(fn(*args, **kwargs))
+        except BaseException as e:  # delivered through the future, as a real executor would
+            fut.set_exception(e)
+        return fut
+
+
+class Progress:
+    """A one-line progress bar on stderr (a line per 10 % when stderr is not a terminal)."""
+
+    def __init__(self, label: str, total: int, enabled: bool = True, stream=None):
+        self.label, self.total, self.enabled = label, max(total, 1), enabled
+        self.stream = stream or sys.stderr
+        self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
+        self.t0 = time.perf_counter()
+        self.done = 0
+        self.last_decile = -1
+
+    def update(self, done: int, note: str = "") -> None:
+        self.done = done
+        if not self.enabled:
+            return
+        frac = done / self.total
+        el = time.perf_counter() - self.t0
+        eta = el / frac - el if frac > 0 else float("nan")
+        bar = "#" * int(30 * frac) + "." * (30 - int(30 * frac))
+        msg = f"{self.label:<10} [{bar}] {done}/{self.total} {el:6.1f} s, eta {eta:5.0f} s {note}"
+        if self.tty:
+            print("\r" + msg, end="\n" if done >= self.total else "", file=self.stream, flush=True)
+        elif int(10 * frac) > self.last_decile or done >= self.total:
+            self.last_decile = int(10 * frac)
+            print(msg, file=self.stream, flush=True)
+
+
+# ---- worker-side tasks (module level: picklable) ----------------------------------------------
+_PLANTS: dict = {}
+
+
+def _plant(ref):
+    """The plant of a task: ``ref`` is a plant object or ("import", target, parameters JSON)."""
+    if not (isinstance(ref, tuple) and ref and ref[0] == "import"):
+        return ref
+    if ref not in _PLANTS:
+        _PLANTS[ref] = proto.load_plant(ref[1], json.loads(ref[2]))
+    return _PLANTS[ref]
+
+
+def trim_line(ref, points, h):
+    """Trims at ``points`` (k, np) in the given order, each warm-started from the last success.
+
+    Returns (x, u, y, z arrays (k, n) with NaN rows where the trim failed, list of error strings).
+    """
+    plant = _plant(ref)
+    out = {k: np.full((len(points), len(proto.names(plant, k))), np.nan) for k in "xuyz"}
+    errors = [""] * len(points)
+    guess = None
+    for i, p in enumerate(points):
+        try:
+            t = plant.trim(np.asarray(p, dtype=np.float64), h, plant.environment(p), guess=guess)
+            vals = {k: np.asarray(t[k], dtype=np.float64).reshape(-1) for k in "xuyz"}
+            if not all(np.all(np.isfinite(v)) for v in vals.values()):
+                raise ValueError("trim returned non-finite values")
+            for k in "xuyz":
+                out[k][i] = vals[k]
+            guess = t
+        except Exception as e:  # recorded per point, filled later
+            errors[i] = f"{type(e).__name__}: {e}"
+    return out, errors
+
+
+def dynamics_point(ref, p, h, guess, dt, method, overrides):
+    """Trim, Jacobians, ZOH and correction at one dynamics point.
+
+    Returns a dict: corrected trim x, u, y, z and discrete corrected matrices A..N, one-sided
+    column count; raises on failure (the caller records it).
+    """
+    plant = _plant(ref)
+    env = plant.environment(p)
+    t = plant.trim(np.asarray(p, dtype=np.float64), h, env, guess=guess)
+    mats, info = jacobians(plant, t, h, env, method, overrides)
+    if getattr(plant, "time", "continuous") == "continuous":
+        mats = discretize(mats, dt)
+    fac = proto.correction_factors(plant, env)
+    out = {f"trim_{k}": np.asarray(t[k], dtype=np.float64).reshape(-1) / fac[k] for k in "xuyz"}
+    out.update(correct(mats, fac))
+    out["one_sided"] = info["one_sided_columns"]
+    for k, v in out.items():
+        if not np.all(np.isfinite(v)):
+            raise ValueError(f"non-finite {k}")
+    return out
+
+
+# ---- checkpoints --------------------------------------------------------------------------------
+class Parts:
+    """Per-task results on disk (``<output>.parts/``), written atomically as they arrive."""
+
+    def __init__(self, out_path: str, key: str):
+        self.dir = os.fspath(out_path) + ".parts"
+        os.makedirs(self.dir, exist_ok=True)
+        stamp = os.path.join(self.dir, "build-key")
+        if os.path.exists(stamp):
+            with open(stamp) as fh:
+                if fh.read().strip() != key:
+                    raise BuildError(f"{self.dir}: partial results of a different spec or plant; "
+                                     f"remove the folder to start over")
+        else:
+            with open(stamp, "w") as fh:
+                fh.write(key)
+
+    def _path(self, name):
+        return os.path.join(self.dir, name + ".npz")
+
+    def get(self, name):
+        p = self._path(name)
+        if not os.path.exists(p):
+            return None
+        with np.load(p, allow_pickle=False) as z:
+            return {k: z[k] for k in z.files}
+
+    def put(self, name, arrays: dict):
+        tmp = self._path(name) + ".tmp.npz"
+        np.savez(tmp, **arrays)
+        os.replace(tmp, self._path(name))
+
+    def remove(self):
+        for f in os.listdir(self.dir):
+            os.remove(os.path.join(self.dir, f))
+        os.rmdir(self.dir)
+
+
+# ---- helpers ------------------------------------------------------------------------------------
+def nearest_good(grid, good: np.ndarray) -> np.ndarray:
+    """Flat donor index for every node: itself if good, else the nearest good node (normalised
+    scheduling distance; ties to the lowest index). ``good`` is a flat bool array."""
+    if not good.any():
+        return np.full(good.size, -1, dtype=np.int64)
+    u = grid.normalized(grid.nodes())
+    gi = np.flatnonzero(good)
+    d = ((u[:, None, :] - u[None, gi, :]) ** 2).sum(-1)
+    donor = gi[np.argmin(d, axis=1)]
+    donor[good] = np.flatnonzero(good)
+    return donor.astype(np.int64)
+
+
+def fill_line(values: np.ndarray, ok: np.ndarray, power: np.ndarray):
+    """Fill failed rows of one power line: linear interpolation between the nearest good
+    neighbours, linear extrapolation from the two nearest good ones outside them (one good point:
+    held). Returns (filled values, status per point)."""
+    status = np.where(ok, COMPUTED, FILLED).astype(np.int8)
+    good = np.flatnonzero(ok)
+    out = values.copy()
+    if good.size == 0:
+        raise BuildError("no trim converged on this power line")
+    for i in np.flatnonzero(~ok):
+        lo, hi = good[good < i], good[good > i]
+        if lo.size and hi.size:
+            a, b = lo[-1], hi[0]
+        else:
+            status[i] = EXTRAPOLATED
+            side = lo if lo.size else hi
+            if side.size == 1:
+                out[i] = values[side[0]]
+                continue
+            a, b = (side[-2], side[-1]) if lo.size else (side[0], side[1])
+        w = (power[i] - power[a]) / (power[b] - power[a])
+        out[i] = (1 - w) * values[a] + w * values[b]
+    return out, status
+
+
+def _key(spec: BuildSpec, ref) -> str:
+    plant_id = ref[1] + ref[2] if isinstance(ref, tuple) else type(ref).__module__ + type(ref).__name__
+    return hashlib.sha256((spec.text + "\n" + plant_id).encode()).hexdigest()
+
+
+def _run(executor, fn, tasks, progress: Progress, on_result):
+    """Submit ``tasks`` (name, args) and hand each (name, result or exception) to ``on_result``."""
+    futs = {executor.submit(fn, *args): name for name, args in tasks}
+    for fut in as_completed(futs):
+        name = futs[fut]
+        try:
+            res = fut.result()
+        except Exception as e:  # a failed task is a failed point, recorded by the caller
+            res = e
+        on_result(name, res)
+        progress.update(progress.done + 1)
+
+
+# ---- the build ----------------------------------------------------------------------------------
+def build(spec: BuildSpec, out_path, *, plant=None, executor: Executor | None = None,
+          workers: int | None = None, progress: bool = True, keep_parts: bool = False,
+          log=print) -> GainDatabase:
+    """Build the database described by ``spec`` and save it atomically to ``out_path``.
+
+    ``plant``: a plant object to use instead of importing ``spec.plant`` (it must be picklable for
+    a process executor). ``executor``: any ``concurrent.futures.Executor`` (a Dask cluster's
+    ``client.get_executor()`` works); default: a process pool of ``workers`` processes.
+    """
+    if plant is None:
+        plant = proto.load_plant(spec.plant, spec.parameters)
+        ref = ("import", spec.plant, json.dumps(spec.parameters, sort_keys=True))
+    else:
+        ref = proto.check_plant(plant)
+    names = {k: proto.names(plant, k) for k in ("x", "u", "y", "z", "h", "p")}
+    for g, label in ((spec.trim_grid, "trim_grid"), (spec.dyn_grid, "dynamics_grid")):
+        if list(g.names) != names["p"]:
+            raise SpecError(f"{spec.path}: [{label}] axes {list(g.names)} must be the plant's scheduling "
+                            f"variables in order {names['p']}")
+    h0 = proto.h_ref(plant)
+    for k, v in spec.health_reference.items():
+        if k not in names["h"]:
+            raise SpecError(f"{spec.path}: [build] health_reference names unknown {k!r}")
+        h0[names["h"].index(k)] = float(v)
+    noise = dict(getattr(plant, "sensor_noise", None) or {})
+    noise.update(spec.r)
+    r_frac = per_channel(noise, names["y"], "sensor noise [kalman] r", spec.path)
+    q_x = per_channel(spec.q_x, names["x"], "[kalman] q_x", spec.path)
+    q_h = per_channel(spec.q_h, names["h"], "[kalman] q_h", spec.path)
+    h_sig = per_channel(spec.health_sigma, names["h"], "[tuners] health_sigma", spec.path)
+    targets = _targets(spec, names)
+    if getattr(plant, "time", "continuous") == "discrete" and abs(plant.dt - spec.dt) > 1e-12 * spec.dt:
+        raise SpecError(f"{spec.path}: dt = {spec.dt} but the discrete plant's dt is {plant.dt}")
+
+    parts = Parts(out_path, _key(spec, ref))
+    own = executor is None
+    if own:
+        executor = ProcessPoolExecutor(max(1, workers or os.cpu_count() or 1))
+    t_start = time.perf_counter()
+    try:
+        trim, trim_status, trim_errors = _trims(spec, ref, names, h0, executor, parts, progress)
+        dyn, dyn_errors = _dynamics(spec, ref, plant, names, h0, trim, executor, parts, progress)
+    finally:
+        if own:
+            executor.shutdown()
+    n_fail_t = sum(1 for e in trim_errors.values() if e)
+    log(f"trims: {spec.trim_grid.size - n_fail_t}/{spec.trim_grid.size} converged"
+        + "".join(f"\n  failed {p}: {e}" for p, e in sorted(trim_errors.items()) if e))
+    log(f"dynamics: {spec.dyn_grid.size - len(dyn_errors)}/{spec.dyn_grid.size} computed"
+        + "".join(f"\n  failed {p}: {e}" for p, e in sorted(dyn_errors.items())))
+
+    # ---- trims in corrected units
+    tg, dg = spec.trim_grid, spec.dyn_grid
+    for i, p in enumerate(tg.nodes()):
+        fac = proto.correction_factors(plant, plant.environment(p))
+        for k in "xuyz":
+            trim[k].reshape(tg.size, -1)[i] /= fac[k]
+
+    # ---- noise covariances per dynamics point (corrected units: noise scales with the value)
+    D = dg.shape
+    nx, ny, nh = len(names["x"]), len(names["y"]), len(names["h"])
+    pts = []
+    for i in range(dg.size):
+        d = dyn["point"][i]
+        pts.append({"mats": {m: dyn[m][i] for m in "ABCDFGLMN"},
+                    "Qx": np.diag((q_x * np.maximum(np.abs(d["trim_x"]), 1e-12)) ** 2),
+                    "Qh": np.diag(q_h ** 2),
+                    "R": np.diag((r_frac * np.maximum(np.abs(d["trim_y"]), 1e-12)) ** 2),
+                    "z_scale": np.maximum(np.abs(d["trim_z"]), 1e-9)})
+    Ph = np.diag(h_sig ** 2)
+
+    # ---- tuners
+    bar = Progress("tuners", 1, progress)
+    V, metric, mse, ranking = select_subset(pts, spec.n_tuners, Ph, targets,
+                                            lambda d, n: (setattr(bar, "total", n), bar.update(d)))
+    subset_metric = metric
+    sel = [names["h"][int(np.argmax(r))] for r in V]
+    log(f"tuners (subset, n = {spec.n_tuners}): {', '.join(sel)}; metric {metric:.4g}; runner-up "
+        + ", ".join(f"{[names['h'][j] for j in S]} {m:.4g}" for m, S in ranking[1:3]))
+    q_names = sel
+    if spec.tuner_method == "optimal":
+        bar = Progress("optimal", 40, progress)
+        V, metric, mse = optimal_tuners(pts, V, Ph, targets, progress=lambda d, n: bar.update(d))
+        q_names = [f"q{j + 1}" for j in range(spec.n_tuners)]
+        log(f"optimal tuners: metric {metric:.4g} (best subset {subset_metric:.4g})")
+    Vp = np.linalg.pinv(V)
+    per_target = {t: float(np.sqrt(m)) for t, m in zip(_target_names(spec, names), mse)}
+
+    # ---- steady-state gains
+    na = nx + spec.n_tuners
+    K = np.zeros((dg.size, na, ny))
+    P = np.zeros((dg.size, na, na))
+    Q = np.zeros((dg.size, na, na))
+    R = np.zeros((dg.size, ny, ny))
+    k_ok = np.ones(dg.size, bool)
+    k_err = {}
+    for i, pt in enumerate(pts):
+        aug = augment(pt["mats"], Vp)
+        Q[i, :nx, :nx] = pt["Qx"]
+        Q[i, nx:, nx:] = V @ pt["Qh"] @ V.T
+        R[i] = pt["R"]
+        try:
+            K[i], P[i] = steady_state_gain(aug["A"], aug["C"], Q[i], R[i], where=f"dynamics point {i}")
+        except GainError as e:
+            k_ok[i] = False
+            k_err[i] = str(e)
+    k_ok &= dyn["status"] == COMPUTED  # a replaced point takes its donor's gain too
+    k_donor = nearest_good(dg, k_ok)
+    if (k_donor < 0).any():
+        raise BuildError(f"no dynamics point has a usable Kalman gain: {k_err}")
+    k_status = np.where(k_ok, COMPUTED, REPLACED).astype(np.int8)
+    for i in np.flatnonzero(~k_ok):
+        K[i], P[i], Q[i], R[i] = K[k_donor[i]], P[k_donor[i]], Q[k_donor[i]], R[k_donor[i]]
+    k_donor[k_ok] = -1
+    if k_err:
+        log(f"kalman: {len(k_err)} gains replaced by the nearest good point: {k_err}")
+
+    ex = proto.correction_exponents(plant)
+    corr = None
+    if ex is not None:
+        c = plant.correction
+        corr = Correction(c["theta"], c["delta"], ex, float(c.get("T_std", 288.15)),
+                          float(c.get("P_std", 101325.0)))
+    units = {k: [plant.units[n] for n in names[k]] for k in names}
+    units["q"] = ["-"] * spec.n_tuners
+    db = GainDatabase(
+        names={**names, "q": q_names}, units=units, trim_grid=tg, dyn_grid=dg,
+        trim={k: trim[k] for k in "xuyz"}, trim_status=trim_status,
+        dynamics={m: dyn[m].reshape(D + dyn[m].shape[1:]) for m in "ABCDFGLMN"},
+        dyn_status=dyn["status"].reshape(D), dyn_donor=dyn["donor"].reshape(D),
+        tuner={"V": V, "V_pinv": Vp, "h_ref": h0},
+        kalman={"K": K.reshape(D + (na, ny)), "P": P.reshape(D + (na, na)),
+                "Q": Q.reshape(D + (na, na)), "R": R.reshape(D + (ny, ny))},
+        kalman_status=k_status.reshape(D), kalman_donor=k_donor.reshape(D), dt=spec.dt,
+        schedule=proto.schedule(plant), correction=corr,
+        attrs={"model": spec.plant, "model_name": plant.name,
+               "model_parameters": plant.parameters(), "spec": spec.text,
+               "tuner_method": spec.tuner_method, "tuner_metric": metric,
+               "tuner_subset_metric": subset_metric, "tuner_rms_error": per_target,
+               "tuner_targets": _target_names(spec, names), "discretization": "zoh",
+               "build_seconds": time.perf_counter() - t_start,
+               "trim_failures": {k: v for k, v in trim_errors.items() if v},
+               "dynamics_failures": dyn_errors},
+        path=os.fspath(out_path))
+    db.save(out_path)
+    if not keep_parts:
+        parts.remove()
+    log(f"wrote {out_path} in {time.perf_counter() - t_start:.1f} s")
+    return db
+
+
+def point_label(grid, p) -> str:
+    """'alt=3000, Mach=0.4, ...' for messages and the failure lists stored in the database."""
+    return ", ".join(f"{n}={float(v):g}" for n, v in zip(grid.names, p))
+
+
+def _targets(spec, names):
+    nh = len(names["h"])
+    out = []
+    for t in spec.targets:
+        if t == "h":
+            out += list(range(nh))
+        elif t in names["h"]:
+            out.append(names["h"].index(t))
+        elif t in names["z"]:
+            out.append(nh + names["z"].index(t))
+        else:
+            raise SpecError(f"{spec.path}: [tuners] target {t!r} is neither 'h' nor a health or "
+                            f"unmeasured-output name")
+    return list(dict.fromkeys(out))
+
+
+def _target_names(spec, names):
+    every = names["h"] + names["z"]
+    return [every[i] for i in _targets(spec, names)]
+
+
+def _trims(spec, ref, names, h0, executor, parts, progress):
+    tg = spec.trim_grid
+    pa = tg.names.index(spec.power_axis)
+    nodes = tg.nodes().reshape(tg.shape + (tg.ndim,))
+    other = [s for j, s in enumerate(tg.shape) if j != pa]
+    trim = {k: np.full(tg.shape + (len(names[k]),), np.nan) for k in "xuyz"}
+    ok = np.zeros(tg.shape, bool)
+    errors = {}
+    lines = {}
+    for oi in np.ndindex(*other):
+        idx = list(oi)
+        idx.insert(pa, slice(None))
+        lines["trim_" + "_".join(map(str, oi))] = tuple(idx)
+    bar = Progress("trims", len(lines), progress)
+
+    def record(sl, out, errs):
+        """Results of one power line, in grid order."""
+        for k in "xuyz":
+            trim[k][sl] = out[k]
+        for j, e in enumerate(errs):
+            node = list(sl)
+            node[pa] = j
+            errors[point_label(tg, nodes[tuple(node)])] = str(e)
+            ok[tuple(node)] = not str(e)
+
+    def store(name, res):
+        n = tg.shape[pa]
+        if isinstance(res, Exception):  # the task itself died: every point failed, not kept
+            record(lines[name], {k: np.full((n, len(names[k])), np.nan) for k in "xuyz"},
+                   [f"{type(res).__name__}: {res}"] * n)
+            return
+        out, errs = res  # solved from the top of the power axis down: reverse to grid order
+        out = {k: out[k][::-1] for k in "xuyz"}
+        errs = list(errs)[::-1]
+        parts.put(name, {**out, "errors": np.array(errs)})
+        record(lines[name], out, errs)
+
+    tasks = []
+    for name, sl in lines.items():
+        got = parts.get(name)
+        if got is not None:
+            record(sl, got, got["errors"])
+            bar.update(bar.done + 1)
+        else:  # from the top of the power axis down: trims converge best near design power
+            tasks.append((name, (ref, nodes[sl][::-1], h0)))
+    _run(executor, trim_line, tasks, bar, lambda n, r: store(n, r))
+
+    status = np.zeros(tg.shape, np.int8)
+    power = tg.axes[pa].values
+    for oi in np.ndindex(*other):
+        idx = list(oi)
+        idx.insert(pa, slice(None))
+        sl = tuple(idx)
+        if not ok[sl].any():
+            raise BuildError(f"no trim converged on the power line at "
+                             f"{point_label(tg, nodes[sl][0])}: {errors[point_label(tg, nodes[sl][0])]}")
+        for k in "xuyz":
+            trim[k][sl], st = fill_line(trim[k][sl], ok[sl], power)
+        status[sl] = st
+    return trim, status, errors
+
+
+def _dynamics(spec, ref, plant, names, h0, trim, executor, parts, progress):
+    """Phase 2. ``trim`` (physical units) gives each dynamics point a warm start."""
+    tg, dg = spec.trim_grid, spec.dyn_grid
+    t_nodes = tg.normalized(tg.nodes())
+    d_nodes = dg.nodes()
+    keys = ("trim_x", "trim_u", "trim_y", "trim_z") + tuple("ABCDFGLMN")
+    res = [None] * dg.size
+    errors = {}
+    bar = Progress("dynamics", dg.size, progress)
+    tasks = []
+    for i, p in enumerate(d_nodes):
+        got = parts.get(f"dyn_{i}")
+        if got is not None:
+            if "error" in got:
+                errors[point_label(dg, p)] = str(got["error"])
+            else:
+                res[i] = got
+            bar.update(bar.done + 1)
+            continue
+        j = int(np.argmin(((t_nodes - tg.normalized(p[None, :])) ** 2).sum(-1)))
+        guess = {k: trim[k].reshape(tg.size, -1)[j] for k in "xuyz"}
+        tasks.append((i, (ref, p, h0, guess, spec.dt, spec.differences, spec.perturbation)))
+
+    def store(i, r):
+        if isinstance(r, Exception):
+            errors[point_label(dg, d_nodes[i])] = f"{type(r).__name__}: {r}"
+            parts.put(f"dyn_{i}", {"error": np.array(errors[point_label(dg, d_nodes[i])])})
+        else:
+            res[i] = r
+            parts.put(f"dyn_{i}", {k: np.asarray(v) for k, v in r.items()})
+
+    _run(executor, dynamics_point, tasks, bar, store)
+    good = np.array([r is not None for r in res])
+    donor = nearest_good(dg, good)
+    if (donor < 0).any():
+        raise BuildError(f"no dynamics point could be linearized: {errors}")
+    out = {k: np.stack([res[donor[i]][k] for i in range(dg.size)]) for k in keys[4:]}
+    out["point"] = [{k: res[donor[i]][k] for k in keys[:4]} for i in range(dg.size)]
+    out["status"] = np.where(good, COMPUTED, REPLACED).astype(np.int8)
+    donor[good] = -1
+    out["donor"] = donor
+    return out, {k: v for k, v in errors.items()}

@@ -1,0 +1,98 @@
+"""The Plant protocol as the builder sees it (docs/plant-protocol.md): loading, checking, and the
+few derived quantities every build step needs (sizes, perturbation sizes, correction factors).
+
+A plant is duck-typed: any object with the documented attributes works, including plants
+written outside this repository. Nothing here imports a model.
+"""
+from __future__ import annotations
+
+import importlib
+
+import numpy as np
+
+KINDS = ("x", "u", "y", "z", "h")
+REQUIRED = ("name", "x_names", "u_names", "y_names", "z_names", "h_names", "p_names", "units",
+            "environment", "trim", "evaluate", "parameters")
+
+
+class PlantProtocolError(TypeError):
+    """An object that does not satisfy the Plant protocol (names what is missing or wrong)."""
+
+
+def load_plant(target: str, parameters: dict | None = None):
+    """Instantiate ``"package.module:ClassName"`` with keyword ``parameters``."""
+    if ":" not in target:
+        raise PlantProtocolError(f"model {target!r}: expected 'package.module:ClassName'")
+    mod, cls = target.split(":", 1)
+    try:
+        obj = getattr(importlib.import_module(mod), cls)
+    except (ImportError, AttributeError) as e:
+        raise PlantProtocolError(f"model {target!r} cannot be imported: {e}") from None
+    return check_plant(obj(**(parameters or {})))
+
+
+def check_plant(plant):
+    """Return ``plant`` if it satisfies the protocol, else raise :class:`PlantProtocolError`."""
+    missing = [a for a in REQUIRED if not hasattr(plant, a)]
+    if missing:
+        raise PlantProtocolError(f"plant {type(plant).__name__} lacks {', '.join(missing)} "
+                                 f"(see docs/plant-protocol.md)")
+    t = getattr(plant, "time", "continuous")
+    if t not in ("continuous", "discrete"):
+        raise PlantProtocolError(f"plant.time must be 'continuous' or 'discrete', got {t!r}")
+    if t == "discrete" and not hasattr(plant, "dt"):
+        raise PlantProtocolError("a discrete-time plant needs a dt attribute")
+    every = [n for k in KINDS + ("p",) for n in names(plant, k)]
+    nounit = [n for n in every if n not in plant.units]
+    if nounit:
+        raise PlantProtocolError(f"plant.units has no entry for {', '.join(nounit)}")
+    if getattr(plant, "correction", None) is not None and not hasattr(plant, "theta_delta"):
+        raise PlantProtocolError("a plant with a correction needs theta_delta(env)")
+    return plant
+
+
+def names(plant, kind: str) -> list[str]:
+    return list(getattr(plant, f"{kind}_names"))
+
+
+def h_ref(plant) -> np.ndarray:
+    h = getattr(plant, "h_ref", None)
+    return np.zeros(len(plant.h_names)) if h is None else np.asarray(h, dtype=np.float64).copy()
+
+
+def perturbation_sizes(plant, values: np.ndarray, kind: str, overrides: dict | None = None) -> np.ndarray:
+    """Absolute perturbation per channel: relative size x max(|value|, 1) for x and u; absolute
+    for health (fractions). Sizes come from ``overrides`` (spec), then ``plant.perturbation``,
+    then 1e-3."""
+    table = dict(getattr(plant, "perturbation", None) or {})
+    table.update(overrides or {})
+    out = np.empty(len(values))
+    for j, n in enumerate(names(plant, kind)):
+        rel = float(table.get(n, 1e-3))
+        out[j] = rel if kind == "h" else rel * max(abs(float(values[j])), 1.0)
+    return out
+
+
+def correction_exponents(plant) -> dict[str, np.ndarray] | None:
+    """kind -> (n, 2) exponents (a, b) for x, u, y, z, or None when the plant has no correction."""
+    corr = getattr(plant, "correction", None)
+    if corr is None:
+        return None
+    ex = corr.get("exponents", {})
+    return {k: np.array([ex.get(n, (0.0, 0.0)) for n in names(plant, k)], dtype=np.float64).reshape(-1, 2)
+            for k in ("x", "u", "y", "z")}
+
+
+def correction_factors(plant, env) -> dict[str, np.ndarray]:
+    """kind -> (n,) factors theta^a delta^b at ambient ``env`` (ones without a correction)."""
+    ex = correction_exponents(plant)
+    if ex is None:
+        return {k: np.ones(len(names(plant, k))) for k in ("x", "u", "y", "z")}
+    theta, delta = plant.theta_delta(env)
+    return {k: theta ** e[:, 0] * delta ** e[:, 1] for k, e in ex.items()}
+
+
+def schedule(plant) -> list[tuple[str, bool, float]]:
+    """How the runtime computes each scheduling variable from a log: (channel, corrected, scale)."""
+    s = getattr(plant, "schedule", None) or {}
+    return [tuple(s.get(p, (p, False, 1.0))) for p in plant.p_names]
