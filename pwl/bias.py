@@ -236,13 +236,13 @@ class FreezeRules:
     """
 
     e_rate: float = 1.0           # F1
-    model_rate: float = 1.0       # F2
+    model_rate: float = 2.0       # F2
     sensor_rate: float = 1.0      # F3
     sensor_min: float = 0.12      # F4 (the sensor saturates at about 0.1)
     sensor_max: float = 1.2       # F5
     estimate_min: float = 0.12    # F6
     estimate_max: float = 1.0     # F7
-    hold: float = 0.5             # s
+    hold: float = 0.2             # s
 
     @classmethod
     def off(cls) -> "FreezeRules":
