@@ -112,10 +112,10 @@ def sample_gains(plant, N: int = 10_000, seed: int = 0, lo=None, hi=None, Q=None
         u, x = pts[i, :nu], pts[i, nu:]
         try:
             A, C = jacobians(plant, x, u)
-            K, _ = steady_state_gain(A, C, Q, R, where=f"operating point {i} (u={u}, x={x})")
+            K, _ = steady_state_gain(A, C, Q, R)
         except (GainError, np.linalg.LinAlgError, ValueError, FloatingPointError) as e:
             if len(failures) < keep_failures:
-                failures.append((i, str(e)))
+                failures.append((i, f"operating point u={u.tolist()}, x={x.tolist()}: {e}"))
             continue
         ok[i] = True
         gains.append(K)

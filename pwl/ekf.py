@@ -1,0 +1,481 @@
+"""Gain-scheduled EKF by k-means zones (SEKF) and the full EKF baseline (numba loops).
+
+Seed paper 001 (Chen 2020). Plant x[k+1] = f(x[k], u[k]) + w, y[k] = h(x[k]) + v. One step k,
+given the a-priori estimate x- = x(k|k-1), the measurement y[k] and the input u[k]::
+
+    SEKF   zone j = zone of (u[k], x-)       nearest node of a fine lookup grid -> its label
+           x+     = x- + K_j (y[k] - h(x-))   K_j the zone's centroid gain (update form)
+           x-     = f(x+, u[k])              next a-priori estimate
+
+    EKF    C = dh/dx(x-),  K = P C^T (C P C^T + R)^-1,  x+ = x- + K (y - h(x-)),
+           P = P - K (P C^T)^T                           (paper eqs. 5-7)
+           A = df/dx(x+, u),  x- = f(x+, u),  P = A P A^T + Q   (eqs. 8-9)
+
+A NaN measurement skips the correction (prediction only). Both loops write the a-posteriori
+estimate x(k|k) of every step and allocate nothing per step (work arrays are made once, before
+the loop).
+
+Plant functions are numba ``njit`` functions passed as first-class arguments, all with the
+signature ``(x, u, p, out) -> None`` (``p`` a float64 parameter vector; see
+:data:`models.chen2020.PlantFunctions`): ``f`` writes x[k+1] (n,), ``jac_f`` df/dx (n, n), ``h``
+writes y (m,), ``jac_h`` dh/dx (m, n). Numba specialises (and inlines) each loop for the functions
+it is given; the price is that such specialisations are not cached on disk, so the first call in
+a process compiles (about a second per loop). Plant-specific loops would be cacheable but would
+put a copy of the filter in every model; one generic kernel was preferred.
+
+The zones themselves: a :class:`ZoneTable` is the online form of the ``/zones`` record of a gain
+database (built offline by :mod:`linearize.zones`): k centroid gains and a lookup grid over the
+scheduling box whose nodes carry a zone label. The lookup is the nearest node: on a uniform
+grid (what :mod:`linearize.zones` builds) by index arithmetic, i = round((v - lo) / step), O(1)
+with no search; on any other grid (zones of a database's dynamics grid) by
+:func:`pwl.grid.locate`, the project's one index search (O(1) with the previous step's index
+as hint, binary search otherwise), rounded to the nearer breakpoint. One table read gives the
+zone. Points outside the box are clipped to its edge (counted).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit
+
+from .grid import Axis, AxisError, Grid, locate
+
+RECORD_FORMAT = "pwl-zones"
+RECORD_VERSION = 1
+
+
+class ZoneError(ValueError):
+    """A zones record that cannot be used (names what is wrong)."""
+
+
+# ---- zone lookup --------------------------------------------------------------------------------
+@njit(cache=True, nogil=True, inline="always")
+def nearest_node(bp, off, strides, point, idx, frac):
+    """Flat index of the grid node nearest to ``point`` (per axis: the closer breakpoint of the
+    bracketing cell; clipped outside). idx (hint in/out) and frac are work arrays as for
+    :func:`pwl.grid.locate`. Returns (node, outside flags)."""
+    flags = locate(bp, off, point, False, idx, frac)
+    r = 0
+    for j in range(point.shape[0]):
+        i = idx[j]
+        if frac[j] >= 0.5:
+            i += 1
+        r += i * strides[j]
+    return r, flags
+
+
+@njit(cache=True, nogil=True, inline="always")
+def nearest_node_uniform(lo, inv_h, nmax, strides, point):
+    """:func:`nearest_node` for a uniform grid (axis j: lo[j] + i / inv_h[j], i = 0..nmax[j]) by
+    index arithmetic, no search: i = round((x - lo) inv_h), clipped. Returns (node, flags)."""
+    r = 0
+    flags = 0
+    for j in range(point.shape[0]):
+        t = (point[j] - lo[j]) * inv_h[j]
+        if t < 0.0:
+            i = 0
+            flags |= 1 << j
+        elif t > nmax[j]:
+            i = nmax[j]
+            flags |= 1 << j
+        else:
+            i = int(t + 0.5)
+        r += i * strides[j]
+    return r, flags
+
+
+@njit(cache=True, nogil=True, inline="always")
+def zone_node(uniform, lo, inv_h, nmax, bp, off, strides, point, idx, frac):
+    """Lookup node of ``point``: :func:`nearest_node_uniform` when ``uniform``, else
+    :func:`nearest_node` (the arguments of both; see :meth:`ZoneTable.kernel_args`)."""
+    if uniform:
+        return nearest_node_uniform(lo, inv_h, nmax, strides, point)
+    return nearest_node(bp, off, strides, point, idx, frac)
+
+
+@njit(cache=True, nogil=True)
+def zone_many(uniform, lo, inv_h, nmax, bp, off, strides, labels, points, out):
+    """Zone label of every row of ``points`` (k, d) into ``out`` (k,) int64; returns how many
+    points lay outside the lookup box (clipped)."""
+    d = points.shape[1]
+    idx = np.zeros(d, dtype=np.int64)
+    frac = np.zeros(d, dtype=np.float64)
+    outside = 0
+    for i in range(points.shape[0]):
+        r, fl = zone_node(uniform, lo, inv_h, nmax, bp, off, strides, points[i], idx, frac)
+        out[i] = labels[r]
+        if fl != 0:
+            outside += 1
+    return outside
+
+
+@dataclass
+class ZoneTable:
+    """Online zones: centroid gains and the lookup grid with a zone label per node.
+
+    ``gains`` (k, n, m) update gains; ``grid`` a :class:`pwl.grid.Grid` over the scheduling
+    coordinates ``grid.names`` (for operating-point zones: the input names, then the state names);
+    ``labels`` int64 of shape ``grid.shape`` with values in 0..k-1; ``centers`` (k, n*m) the
+    centroids in normalised gain space (gain / ``scale``, element-wise, flattened row-major);
+    ``attrs`` the record's metadata (JSON-able).
+    """
+
+    gains: np.ndarray
+    grid: Grid
+    labels: np.ndarray
+    centers: np.ndarray
+    scale: np.ndarray
+    counts: np.ndarray
+    attrs: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        self.gains = np.ascontiguousarray(self.gains, dtype=np.float64)
+        self.labels = np.ascontiguousarray(self.labels, dtype=np.int64)
+        self.centers = np.asarray(self.centers, dtype=np.float64)
+        self.scale = np.asarray(self.scale, dtype=np.float64)
+        self.counts = np.asarray(self.counts, dtype=np.int64)
+        self.validate()
+
+    @property
+    def k(self) -> int:
+        return self.gains.shape[0]
+
+    @property
+    def flat_labels(self) -> np.ndarray:
+        return self.labels.reshape(-1)
+
+    def validate(self, where: str = "zones") -> None:
+        k = self.gains.shape[0]
+        if self.gains.ndim != 3 or k < 1:
+            raise ZoneError(f"{where}: gains must have shape (k, n, m), got {self.gains.shape}")
+        nm = self.gains.shape[1] * self.gains.shape[2]
+        if self.centers.shape != (k, nm):
+            raise ZoneError(f"{where}: centers has shape {self.centers.shape}, expected {(k, nm)}")
+        if self.scale.shape != (nm,) or not np.all(self.scale > 0):
+            raise ZoneError(f"{where}: scale must be positive with shape {(nm,)}, got {self.scale}")
+        if self.counts.shape != (k,):
+            raise ZoneError(f"{where}: counts has shape {self.counts.shape}, expected {(k,)}")
+        if self.labels.shape != self.grid.shape:
+            raise ZoneError(f"{where}: lookup labels have shape {self.labels.shape}, "
+                            f"grid is {self.grid.shape}")
+        if self.labels.size and (self.labels.min() < 0 or self.labels.max() >= k):
+            raise ZoneError(f"{where}: lookup labels outside 0..{k - 1}")
+        if not np.all(np.isfinite(self.gains)):
+            raise ZoneError(f"{where}: non-finite centroid gains")
+
+    def zone_of(self, points) -> np.ndarray:
+        """Zone labels (int64) at points (d,) or (k, d) in the grid's coordinates."""
+        pts = np.ascontiguousarray(np.atleast_2d(points), dtype=np.float64)
+        if pts.shape[1] != self.grid.ndim:
+            raise ValueError(f"points need {self.grid.ndim} columns {self.grid.names}, "
+                             f"got shape {pts.shape}")
+        out = np.empty(pts.shape[0], dtype=np.int64)
+        zone_many(*self.kernel_args(), pts, out)
+        return out
+
+    def kernel_args(self, force_search: bool = False):
+        """(uniform, lo, inv_h, nmax, bp, off, strides, labels) for the kernels. ``uniform`` is
+        True when every lookup axis is equally spaced (to 1e-12 of its span) and not
+        ``force_search``: the lookup is then index arithmetic instead of the grid search."""
+        g = self.grid
+        lo = np.array([a.lo for a in g.axes])
+        span = np.array([a.hi - a.lo for a in g.axes])
+        nmax = np.array([len(a) - 1 for a in g.axes], dtype=np.int64)
+        uniform = not force_search and all(
+            np.abs(a.values - np.linspace(a.lo, a.hi, len(a))).max() <= 1e-12 * (a.hi - a.lo)
+            for a in g.axes)
+        return (uniform, lo, nmax / span, nmax, g.bp, g.off, g.strides, self.flat_labels)
+
+    # ---- the /zones record of a gain database -------------------------------------------------
+    def record(self) -> tuple[dict, dict]:
+        """(arrays, attrs) for :func:`pwl.database.write_record` / ``GainDatabase.zones``."""
+        lab_dtype = np.int8 if self.k <= 127 else np.int16 if self.k <= 32767 else np.int64
+        arrays = {"centers": self.centers, "gains": self.gains, "scale": self.scale,
+                  "counts": self.counts, "lookup_bp": self.grid.bp, "lookup_off": self.grid.off,
+                  "lookup_labels": self.labels.astype(lab_dtype)}
+        attrs = dict(self.attrs)
+        attrs.update(format=RECORD_FORMAT, format_version=RECORD_VERSION, k=int(self.k),
+                     gain_form="update", lookup_names=list(self.grid.names),
+                     lookup_units=[a.unit for a in self.grid.axes])
+        return arrays, attrs
+
+    @classmethod
+    def from_record(cls, record, where: str = "/zones") -> "ZoneTable":
+        """Check and unpack a record read by :func:`pwl.database.read_record`."""
+        if record is None:
+            raise ZoneError(f"{where}: the database has no zones record")
+        arrays, attrs = record
+        if attrs.get("format") != RECORD_FORMAT:
+            raise ZoneError(f"{where}: not a {RECORD_FORMAT} record (format = {attrs.get('format')!r}; "
+                            "build zones with linearize.zones)")
+        if int(attrs.get("format_version", -1)) > RECORD_VERSION:
+            raise ZoneError(f"{where}: record version {attrs.get('format_version')} is newer than "
+                            f"this pwl reads ({RECORD_VERSION})")
+        need = ("centers", "gains", "scale", "counts", "lookup_bp", "lookup_off", "lookup_labels")
+        missing = [n for n in need if n not in arrays]
+        if missing:
+            raise ZoneError(f"{where}: datasets {missing} are missing")
+        names = list(attrs.get("lookup_names", []))
+        units = list(attrs.get("lookup_units", [""] * len(names)))
+        bp = np.asarray(arrays["lookup_bp"], dtype=np.float64)
+        off = np.asarray(arrays["lookup_off"], dtype=np.int64)
+        if off.shape != (len(names) + 1,) or off[0] != 0 or off[-1] != bp.size:
+            raise ZoneError(f"{where}: lookup_off {off} does not match {len(names)} axes "
+                            f"and {bp.size} breakpoints")
+        try:
+            grid = Grid([Axis(nm, bp[off[j]:off[j + 1]], un)
+                         for j, (nm, un) in enumerate(zip(names, units))])
+        except AxisError as e:
+            raise ZoneError(f"{where}: lookup grid: {e}") from None
+        extra = {k: v for k, v in attrs.items()
+                 if k not in ("format", "format_version", "k", "gain_form", "lookup_names",
+                              "lookup_units")}
+        return cls(gains=arrays["gains"], grid=grid, labels=arrays["lookup_labels"],
+                   centers=arrays["centers"], scale=arrays["scale"], counts=arrays["counts"],
+                   attrs=extra)
+
+    def nbytes(self) -> int:
+        """Bytes of the stored record's arrays (what the zones add to a database)."""
+        return int(sum(np.asarray(v).nbytes for v in self.record()[0].values()))
+
+
+# ---- small in-place linear algebra (no allocation) ----------------------------------------------
+@njit(cache=True, nogil=True)
+def _chol_solve_right(S, B, L, out):
+    """out = B S^-1 for symmetric positive definite S (m, m), B (n, m); L (m, m) work array.
+    Returns False (out untouched) when S is not positive definite."""
+    m = S.shape[0]
+    for i in range(m):
+        for j in range(i + 1):
+            s = S[i, j]
+            for c in range(j):
+                s -= L[i, c] * L[j, c]
+            if i == j:
+                if not s > 0.0:
+                    return False
+                L[i, i] = np.sqrt(s)
+            else:
+                L[i, j] = s / L[j, j]
+    # rows of out solve S out_r^T = b_r^T: forward (L) then backward (L^T)
+    for r in range(B.shape[0]):
+        for i in range(m):
+            s = B[r, i]
+            for c in range(i):
+                s -= L[i, c] * out[r, c]
+            out[r, i] = s / L[i, i]
+        for i in range(m - 1, -1, -1):
+            s = out[r, i]
+            for c in range(i + 1, m):
+                s -= L[c, i] * out[r, c]
+            out[r, i] = s / L[i, i]
+    return True
+
+
+# ---- the filters ----------------------------------------------------------------------------------
+@njit(nogil=True)
+def sekf_loop(f, h, U, Y, x0, p, uniform, lo, inv_h, nmax, bp, off, strides, labels, gains,
+              X_out, Z_out):
+    """Scheduled-gain EKF over T steps. U (T, nu), Y (T, m) (NaN: no correction), x0 (n,) the
+    a-priori estimate of step 0, p the plant parameter vector; (uniform .. labels) the lookup
+    grid over (u, x) and its flat node labels (:meth:`ZoneTable.kernel_args`), gains (k, n, m). Writes X_out (T, n) the
+    a-posteriori estimates and, when Z_out has T entries, the zone used at each step (-1 when no
+    correction). Returns the number of steps whose (u, x-) lay outside the lookup box."""
+    n = x0.shape[0]
+    nu = U.shape[1]
+    m = Y.shape[1]
+    T = U.shape[0]
+    d = nu + n
+    xm = x0.copy()
+    xp = np.empty(n)
+    yh = np.empty(m)
+    e = np.empty(m)
+    pt = np.empty(d)
+    idx = np.zeros(d, dtype=np.int64)
+    frac = np.zeros(d)
+    u = np.empty(nu)
+    store_zone = Z_out.shape[0] == T
+    outside = 0
+    for k in range(T):
+        for i in range(nu):
+            u[i] = U[k, i]
+        h(xm, u, p, yh)
+        ok = True
+        for i in range(m):
+            e[i] = Y[k, i] - yh[i]
+            if np.isnan(e[i]):
+                ok = False
+        if ok:
+            for i in range(nu):
+                pt[i] = u[i]
+            for i in range(n):
+                pt[nu + i] = xm[i]
+            if uniform:
+                r, fl = nearest_node_uniform(lo, inv_h, nmax, strides, pt)
+            else:
+                r, fl = nearest_node(bp, off, strides, pt, idx, frac)
+            if fl != 0:
+                outside += 1
+            z = labels[r]
+            for i in range(n):
+                s = xm[i]
+                for j in range(m):
+                    s += gains[z, i, j] * e[j]
+                xp[i] = s
+        else:
+            z = -1
+            for i in range(n):
+                xp[i] = xm[i]
+        for i in range(n):
+            X_out[k, i] = xp[i]
+        if store_zone:
+            Z_out[k] = z
+        f(xp, u, p, xm)
+    return outside
+
+
+@njit(nogil=True)
+def ekf_loop(f, jac_f, h, jac_h, U, Y, x0, P0, Q, R, p, X_out, Pd_out):
+    """Full EKF over T steps (paper eqs. 5-9): online Jacobians, gain and covariance. x0 (n,),
+    P0 (n, n) the a-priori estimate and covariance of step 0; Q (n, n), R (m, m). Writes X_out
+    (T, n) the a-posteriori estimates and, when Pd_out has T rows, the diagonal of P(k|k).
+    Returns the number of steps whose innovation covariance was not positive definite (no
+    correction made)."""
+    n = x0.shape[0]
+    m = Y.shape[1]
+    T = U.shape[0]
+    xm = x0.copy()
+    xp = np.empty(n)
+    P = P0.copy()
+    A = np.empty((n, n))
+    C = np.empty((m, n))
+    PCt = np.empty((n, m))
+    S = np.empty((m, m))
+    L = np.empty((m, m))
+    K = np.empty((n, m))
+    AP = np.empty((n, n))
+    yh = np.empty(m)
+    e = np.empty(m)
+    u = np.empty(U.shape[1])
+    store_p = Pd_out.shape[0] == T
+    bad = 0
+    for k in range(T):
+        for i in range(u.shape[0]):
+            u[i] = U[k, i]
+        h(xm, u, p, yh)
+        ok = True
+        for i in range(m):
+            e[i] = Y[k, i] - yh[i]
+            if np.isnan(e[i]):
+                ok = False
+        if ok:
+            jac_h(xm, u, p, C)
+            for i in range(n):                      # PCt = P C^T
+                for j in range(m):
+                    s = 0.0
+                    for c in range(n):
+                        s += P[i, c] * C[j, c]
+                    PCt[i, j] = s
+            for i in range(m):                      # S = C P C^T + R
+                for j in range(m):
+                    s = R[i, j]
+                    for c in range(n):
+                        s += C[i, c] * PCt[c, j]
+                    S[i, j] = s
+            if m == 1:                              # K = P C^T S^-1
+                ok = S[0, 0] > 0.0
+                if ok:
+                    si = 1.0 / S[0, 0]
+                    for i in range(n):
+                        K[i, 0] = PCt[i, 0] * si
+            else:
+                ok = _chol_solve_right(S, PCt, L, K)
+            if not ok:
+                bad += 1
+        if ok:
+            for i in range(n):
+                s = xm[i]
+                for j in range(m):
+                    s += K[i, j] * e[j]
+                xp[i] = s
+            for i in range(n):                      # P = P - K (P C^T)^T
+                for j in range(n):
+                    s = 0.0
+                    for c in range(m):
+                        s += K[i, c] * PCt[j, c]
+                    P[i, j] -= s
+        else:
+            for i in range(n):
+                xp[i] = xm[i]
+        for i in range(n):
+            X_out[k, i] = xp[i]
+        if store_p:
+            for i in range(n):
+                Pd_out[k, i] = P[i, i]
+        jac_f(xp, u, p, A)
+        f(xp, u, p, xm)
+        for i in range(n):                          # P = A P A^T + Q
+            for j in range(n):
+                s = 0.0
+                for c in range(n):
+                    s += A[i, c] * P[c, j]
+                AP[i, j] = s
+        for i in range(n):
+            for j in range(i, n):
+                s = Q[i, j]
+                for c in range(n):
+                    s += AP[i, c] * A[j, c]
+                P[i, j] = s
+                P[j, i] = s
+    return bad
+
+
+# ---- Python wrappers -------------------------------------------------------------------------------
+def _prep(U, Y, x0):
+    U = np.ascontiguousarray(U, dtype=np.float64)
+    Y = np.ascontiguousarray(Y, dtype=np.float64)
+    if U.ndim == 1:
+        U = U[:, None]
+    if Y.ndim == 1:
+        Y = Y[:, None]
+    if U.shape[0] != Y.shape[0]:
+        raise ValueError(f"U has {U.shape[0]} steps, Y has {Y.shape[0]}")
+    x0 = np.ascontiguousarray(x0, dtype=np.float64).reshape(-1)
+    return U, Y, x0
+
+
+def run_sekf(functions, p, zones: ZoneTable, U, Y, x0, return_zones: bool = False,
+             force_search: bool = False):
+    """Scheduled-gain EKF: a-posteriori estimates X (T, n) [, zones (T,) int64], outside count.
+
+    ``functions`` has attributes f and h (numba plant kernels), ``p`` the parameter vector;
+    the zone lookup coordinates are (u, x) in that order (``zones.grid`` has nu + n axes).
+    """
+    U, Y, x0 = _prep(U, Y, x0)
+    n = x0.size
+    if zones.grid.ndim != U.shape[1] + n:
+        raise ValueError(f"zone lookup grid has {zones.grid.ndim} axes {zones.grid.names}; "
+                         f"(u, x) has {U.shape[1] + n}")
+    if zones.gains.shape[1:] != (n, Y.shape[1]):
+        raise ValueError(f"zone gains have shape {zones.gains.shape[1:]}, expected {(n, Y.shape[1])}")
+    T = U.shape[0]
+    X = np.empty((T, n))
+    Z = np.empty(T if return_zones else 0, dtype=np.int64)
+    out = sekf_loop(functions.f, functions.h, U, Y, x0, np.asarray(p, dtype=np.float64),
+                    *zones.kernel_args(force_search), zones.gains, X, Z)
+    return (X, Z, out) if return_zones else (X, out)
+
+
+def run_ekf(functions, p, U, Y, x0, P0, Q, R, return_pdiag: bool = False):
+    """Full EKF: a-posteriori estimates X (T, n) [, diag P(k|k) (T, n)], count of skipped
+    corrections (innovation covariance not positive definite)."""
+    U, Y, x0 = _prep(U, Y, x0)
+    n, m = x0.size, Y.shape[1]
+    f64 = lambda a, s: np.ascontiguousarray(np.atleast_2d(a), dtype=np.float64).reshape(s)  # noqa: E731
+    P0, Q, R = f64(P0, (n, n)), f64(Q, (n, n)), f64(R, (m, m))
+    T = U.shape[0]
+    X = np.empty((T, n))
+    Pd = np.empty((T if return_pdiag else 0, n))
+    bad = ekf_loop(functions.f, functions.jac_f, functions.h, functions.jac_h, U, Y, x0, P0, Q, R,
+                   np.asarray(p, dtype=np.float64), X, Pd)
+    return (X, Pd, bad) if return_pdiag else (X, bad)
