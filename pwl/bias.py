@@ -55,7 +55,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from numba import njit
 
-from .grid import Grid, locate
+from .grid import locate
 from .interp import corner_weights
 from .tables import LAWS, count_ratio, table_predict, table_update
 
