@@ -10,8 +10,8 @@ Plain numpy (no pwl, no linearize). Units: temperature in degC, resistance in mi
   NOT the new cell's (the estimator's prior assumes growth proportional to R_new):
   film growth dR_f = a_f s R25 exp(B_f (1/(T + 273.15) - 1/298.15)), a_f = 0.5, B_f = 2000 K
   (weaker temperature dependence than the electrolyte's), and contact/collector corrosion
-  dR_c = a_c s R25, a_c = 0.15 (no temperature dependence). End of life: +65 % at 25 C,
-  +57 % at -20 C, +71 % at 50 C.
+  dR_c = a_c s R25, a_c = 0.15 (no temperature dependence). End of life: +34 % at -20 C,
+  +65 % at 25 C, +93 % at 50 C (relative growth differs from the prior's uniform one).
 * **Local estimates.** Each sample is a noisy resistance estimate at the current cell temperature
   (e.g. from a current pulse; Gaussian, std ``noise_std`` = 0.08 mOhm), as a recursive local
   estimator at the operating point would give.

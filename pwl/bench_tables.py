@@ -112,7 +112,8 @@ def bench_tables(n_points: int = 2_000_000, n_ref: int = 20_000, ratio: float = 
         res[f"numba_updates_per_s_{kind}"] = n_points / t
         res[f"table_rms_error_{kind}"] = float(np.sqrt(np.mean((vals - truth) ** 2)))
     # kernel only: weights precomputed (200k points, looped)
-    nk, rep = 200_000, max(1, n_points // 200_000)
+    nk = min(200_000, n_points)
+    rep = max(1, n_points // nk)
     p = pts["random"][:nk]
     W = np.zeros((nk, 4))
     R = np.zeros((nk, 4), dtype=np.int64)

@@ -396,8 +396,16 @@ class AdaptiveTable:
                 f"{'enabled' if self.enabled else 'locked'}, {self.n_updates} updates)")
 
     # ---- points ------------------------------------------------------------------------------
+    def _single(self, p) -> bool:
+        """One point: shape (ndim,), or a scalar for a 1-D table."""
+        return np.ndim(p) == 0 or (np.ndim(p) == 1 and np.size(p) == self.grid.ndim)
+
     def _points(self, p):
-        pts = np.ascontiguousarray(np.atleast_2d(np.asarray(p, dtype=np.float64)))
+        """Points as (k, ndim); a 1-D table also takes a scalar or a (k,) vector of points."""
+        a = np.asarray(p, dtype=np.float64)
+        if self.grid.ndim == 1 and a.ndim <= 1:
+            a = a.reshape(-1, 1)
+        pts = np.ascontiguousarray(np.atleast_2d(a))
         if pts.ndim != 2 or pts.shape[1] != self.grid.ndim:
             raise TableError(f"points must have shape ({self.grid.ndim},) or (k, {self.grid.ndim}), "
                              f"got {np.shape(p)}")
@@ -416,7 +424,7 @@ class AdaptiveTable:
 
     def predict(self, p):
         """Table output at p: (ndim,) -> float, (k, ndim) -> (k,). Uses the grid's policy outside."""
-        single = np.ndim(p) == 1
+        single = self._single(p)
         pts = self._points(p)
         out = np.empty((pts.shape[0], 1))
         interp_many(self.values.reshape(-1, 1), self.grid.bp, self.grid.off, self.grid.strides,
@@ -447,7 +455,7 @@ class AdaptiveTable:
         """Learn from error = reference - prediction at p (one point, or k points in order with k
         errors). Returns the change of the table output at p (0 where nothing was learnt:
         locked table, NaN error, point outside the grid unless update_outside)."""
-        single = np.ndim(p) == 1
+        single = self._single(p)
         pts = self._points(p)
         err = np.broadcast_to(np.asarray(error, dtype=np.float64), (pts.shape[0],))
         out = np.zeros(pts.shape[0])

@@ -269,6 +269,18 @@ def test_out_of_range_lock_and_counts():
     assert np.isnan(pred[1]) and t.n_updates == 1
 
 
+def test_point_shapes():
+    t1 = AdaptiveTable(Grid([Axis("a", [0.0, 1.0, 2.0])]), [0.0, 1.0, 4.0])
+    assert t1.predict(1.5) == t1.predict([1.5]) == 2.5
+    assert np.allclose(t1.predict([0.5, 1.5, 2.0]), [0.5, 2.5, 4.0])
+    assert np.allclose(t1.predict([[0.5], [1.5]]), [0.5, 2.5])
+    assert isinstance(t1.update(1.0, 0.1), float) and t1.update([0.5, 1.5], [0.1, 0.1]).shape == (2,)
+    t2 = AdaptiveTable(Grid([Axis("a", [0.0, 1.0]), Axis("b", [0.0, 1.0])]))
+    assert isinstance(t2.predict([0.5, 0.5]), float) and t2.predict([[0.5, 0.5]]).shape == (1,)
+    with pytest.raises(TableError, match="shape"):
+        t2.predict([0.5, 0.5, 0.5])
+
+
 def test_ratio_varied_from_visit_counts():
     grid = Grid([Axis("a", [0.0, 1.0])])
     t = AdaptiveTable(grid, ratio=4.0, ratio_warmup=10.0)
