@@ -8,7 +8,7 @@ HELP = "benchmarks (interp: interpolation kernel vs RegularGridInterpolator; run
 TARGETS = {
     "interp": "pwl.bench:bench_interp",
     "run": "pwl.bench:bench_run",
-    "table": "pwl.adaptive:benchmark",
+    "table": "pwl.bench_tables:bench_tables",
 }
 
 
