@@ -36,7 +36,7 @@ DEFAULTS = {
     "inlet_recovery": 0.995, "dp_bypass_duct": 0.015, "dp_lpc_hpc_duct": 0.015,
     "dp_core_exit": 0.01, "bleed_customer": 0.015, "cool_hpt": 0.05, "cool_lpt": 0.03,
     "eta_mech_lp": 0.995, "eta_mech_hp": 0.995, "P_ext_lp": 0.0, "P_ext_hp": 150e3,
-    "Cv_bypass": 0.985, "Cv_core": 0.985, "nozzle_eps": 0.05, "Ps30_ratio": 0.96,
+    "Cv_bypass": 0.985, "Cv_core": 0.985, "nozzle_eps": 0.08, "Ps30_ratio": 0.96,
     "J_lp": 100.0, "J_hp": 20.0,       # shaft inertias, kg m^2
     # compressor maps: design beta, design stall margin (%), flow/PR speed exponents, line shape
     "fan_map": {"beta": 0.5, "SM": 20.0, "aw": 1.1, "ap": 1.9, "s1": 0.12, "qs": 1.5,
@@ -62,7 +62,7 @@ P_NAMES = ("alt", "Mach", "NfR")
 UNITS = {"Nf": "rpm", "Nc": "rpm", "Wf": "kg/s", "T24": "K", "Ps30": "Pa", "T30": "K", "T48": "K",
          "P50": "Pa", "Fn": "N", "T40": "K", "SmFan": "%", "SmLPC": "%", "SmHPC": "%",
          **{h: "-" for h in H_NAMES}, "alt": "m", "Mach": "-", "NfR": "%", "T2": "K", "P2": "Pa",
-         "dTamb": "K"}
+         "dTamb": "K", "TRA": "%", "NfR_demand": "%"}
 # station indices of y and z in the station vector
 Y_IDX = np.array([gp.S_NFRPM, gp.S_NCRPM, gp.S_T24, gp.S_PS3, gp.S_T3, gp.S_T48, gp.S_P50])
 Z_IDX = np.array([gp.S_FN, gp.S_T4, gp.S_SMF, gp.S_SML, gp.S_SMH])
