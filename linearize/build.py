@@ -223,14 +223,20 @@ def _key(spec: BuildSpec, ref) -> str:
 def _run(executor, fn, tasks, progress: Progress, on_result):
     """Submit ``tasks`` (name, args) and hand each (name, result or exception) to ``on_result``."""
     futs = {executor.submit(fn, *args): name for name, args in tasks}
+    abort = None
     for fut in as_completed(futs):
         name = futs[fut]
         try:
             res = fut.result()
         except Exception as e:  # a failed task is a failed point, recorded by the caller
             res = e
+        except BaseException as e:  # an interrupt: keep every other finished result, then stop
+            abort = e
+            continue
         on_result(name, res)
         progress.update(progress.done + 1)
+    if abort is not None:
+        raise abort
 
 
 # ---- the build ----------------------------------------------------------------------------------

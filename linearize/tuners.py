@@ -45,6 +45,20 @@ def point_mse(mats: dict, V, Qx, Qh, R, Ph, z_scale, targets) -> np.ndarray:
     true health; z_scale (nz,) normalisation of z errors; targets: indices into [h (nh); z (nz)].
     """
     V = np.atleast_2d(V)
+    # work in units of the noise (x / sigma_x, y / sigma_y): the metric is invariant under this
+    # similarity, and engine states in rpm next to fractions would make the Lyapunov solve singular
+    sx = np.sqrt(np.diag(Qx))
+    sy = np.sqrt(np.diag(R))
+    mats = dict(mats)
+    mats["A"] = mats["A"] * sx[None, :] / sx[:, None]
+    mats["L"] = mats["L"] / sx[:, None]
+    mats["C"] = mats["C"] * sx[None, :] / sy[:, None]
+    mats["M"] = mats["M"] / sy[:, None]
+    mats["F"] = mats["F"] * sx[None, :]
+    mats["B"] = mats["B"] / sx[:, None]
+    mats["D"] = mats["D"] / sy[:, None]
+    Qx = Qx / np.outer(sx, sx)
+    R = R / np.outer(sy, sy)
     Vp = np.linalg.pinv(V)
     nx, nh, nq = mats["A"].shape[0], V.shape[1], V.shape[0]
     aug = augment(mats, Vp)

@@ -199,11 +199,11 @@ class GainDatabase:
     def save(self, path) -> None:
         """Write the database to ``path`` atomically (temporary file + rename)."""
         self.validate()
+        self.attrs.setdefault("created", _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"))
         with atomic_h5(path) as f:
             f.attrs["format"] = FORMAT
             f.attrs["format_version"] = VERSION
-            f.attrs["created"] = self.attrs.get("created") or _dt.datetime.now(
-                _dt.timezone.utc).isoformat(timespec="seconds")
+            f.attrs["created"] = self.attrs["created"]
             f.attrs["software_version"] = __version__
             f.attrs["out_of_range"] = self.policy
             f.attrs["attrs_json"] = json.dumps(self.attrs, sort_keys=True)
