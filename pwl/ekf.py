@@ -274,18 +274,19 @@ def _chol_solve_right(S, B, L, out):
 
 # ---- the filters ----------------------------------------------------------------------------------
 @njit(nogil=True)
-def sekf_loop(f, h, U, Y, x0, p, uniform, lo, inv_h, nmax, bp, off, strides, labels, gains,
-              X_out, Z_out):
+def sekf_loop(f, h, U, Y, x0, p, coords, uniform, lo, inv_h, nmax, bp, off, strides, labels,
+              gains, X_out, Z_out):
     """Scheduled-gain EKF over T steps. U (T, nu), Y (T, m) (NaN: no correction), x0 (n,) the
-    a-priori estimate of step 0, p the plant parameter vector; (uniform .. labels) the lookup
-    grid over (u, x) and its flat node labels (:meth:`ZoneTable.kernel_args`), gains (k, n, m). Writes X_out (T, n) the
+    a-priori estimate of step 0, p the plant parameter vector; coords (d,) int64 the indices in
+    the vector (u, x) of the lookup coordinates (all of them: arange(nu + n)); (uniform .. labels)
+    the lookup grid and its flat node labels (:meth:`ZoneTable.kernel_args`), gains (k, n, m). Writes X_out (T, n) the
     a-posteriori estimates and, when Z_out has T entries, the zone used at each step (-1 when no
     correction). Returns the number of steps whose (u, x-) lay outside the lookup box."""
     n = x0.shape[0]
     nu = U.shape[1]
     m = Y.shape[1]
     T = U.shape[0]
-    d = nu + n
+    d = coords.shape[0]
     xm = x0.copy()
     xp = np.empty(n)
     yh = np.empty(m)
@@ -306,10 +307,9 @@ def sekf_loop(f, h, U, Y, x0, p, uniform, lo, inv_h, nmax, bp, off, strides, lab
             if np.isnan(e[i]):
                 ok = False
         if ok:
-            for i in range(nu):
-                pt[i] = u[i]
-            for i in range(n):
-                pt[nu + i] = xm[i]
+            for j in range(d):
+                c = coords[j]
+                pt[j] = u[c] if c < nu else xm[c - nu]
             if uniform:
                 r, fl = nearest_node_uniform(lo, inv_h, nmax, strides, pt)
             else:
@@ -444,24 +444,41 @@ def _prep(U, Y, x0):
     return U, Y, x0
 
 
+def lookup_coords(zones: ZoneTable, names) -> np.ndarray:
+    """Indices of the lookup axes of ``zones`` in the list ``names`` of the (u, x) coordinates
+    (input names then state names), e.g. ``plant.u_names + plant.x_names``."""
+    names = list(names)
+    missing = [a for a in zones.grid.names if a not in names]
+    if missing:
+        raise ZoneError(f"zone lookup axes {missing} are not among the (u, x) coordinates {names}")
+    return np.array([names.index(a) for a in zones.grid.names], dtype=np.int64)
+
+
 def run_sekf(functions, p, zones: ZoneTable, U, Y, x0, return_zones: bool = False,
-             force_search: bool = False):
+             force_search: bool = False, coords=None):
     """Scheduled-gain EKF: a-posteriori estimates X (T, n) [, zones (T,) int64], outside count.
 
-    ``functions`` has attributes f and h (numba plant kernels), ``p`` the parameter vector;
-    the zone lookup coordinates are (u, x) in that order (``zones.grid`` has nu + n axes).
+    ``functions`` has attributes f and h (numba plant kernels), ``p`` the parameter vector.
+    ``coords``: indices in (u, x) of the lookup axes (see :func:`lookup_coords`); default all of
+    (u, x) in that order, which needs a lookup grid with nu + n axes.
     """
     U, Y, x0 = _prep(U, Y, x0)
     n = x0.size
-    if zones.grid.ndim != U.shape[1] + n:
-        raise ValueError(f"zone lookup grid has {zones.grid.ndim} axes {zones.grid.names}; "
-                         f"(u, x) has {U.shape[1] + n}")
+    if coords is None:
+        if zones.grid.ndim != U.shape[1] + n:
+            raise ValueError(f"zone lookup grid has {zones.grid.ndim} axes {zones.grid.names}; "
+                             f"(u, x) has {U.shape[1] + n}: give coords")
+        coords = np.arange(U.shape[1] + n)
+    coords = np.ascontiguousarray(coords, dtype=np.int64)
+    if coords.shape != (zones.grid.ndim,) or coords.min() < 0 or coords.max() >= U.shape[1] + n:
+        raise ValueError(f"coords {coords} must index {zones.grid.ndim} of the {U.shape[1] + n} "
+                         "(u, x) coordinates")
     if zones.gains.shape[1:] != (n, Y.shape[1]):
         raise ValueError(f"zone gains have shape {zones.gains.shape[1:]}, expected {(n, Y.shape[1])}")
     T = U.shape[0]
     X = np.empty((T, n))
     Z = np.empty(T if return_zones else 0, dtype=np.int64)
-    out = sekf_loop(functions.f, functions.h, U, Y, x0, np.asarray(p, dtype=np.float64),
+    out = sekf_loop(functions.f, functions.h, U, Y, x0, np.asarray(p, dtype=np.float64), coords,
                     *zones.kernel_args(force_search), zones.gains, X, Z)
     return (X, Z, out) if return_zones else (X, out)
 

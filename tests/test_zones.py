@@ -25,7 +25,7 @@ def plant():
 
 @pytest.fixture(scope="module")
 def build(plant):
-    return Z.build_zones(plant, k=3, N=1500, seed=3, lookup_shape=(7, 41, 9))
+    return Z.build_zones(plant, k=3, N=800, seed=3, lookup_shape=(7, 41, 9))
 
 
 def simulate(plant, T, seed):
@@ -145,13 +145,40 @@ def test_sekf_matches_numpy_reference(plant, build):
     assert len(set(zk[zk >= 0].tolist())) >= 2     # the run crosses zones
 
 
+def test_sekf_lookup_on_a_subset_of_coordinates(plant, build):
+    """coords: a 1-D lookup over x1 only (index 1 of (u, x1, x2)) vs the numpy reference."""
+    from pwl.ekf import lookup_coords
+    from pwl.grid import Axis, Grid
+
+    x1 = np.linspace(-20, 20, 81)
+    lab = build.table.zone_of(np.column_stack([np.full(81, 0.5), x1, np.zeros(81)]))
+    t1 = ZoneTable(gains=build.table.gains, grid=Grid([Axis("x1", x1)]), labels=lab,
+                   centers=build.table.centers, scale=build.table.scale, counts=build.table.counts)
+    co = lookup_coords(t1, plant.u_names + plant.x_names)
+    assert co.tolist() == [1]
+    with pytest.raises(ZoneError, match="not among"):
+        lookup_coords(t1, ("u", "x2"))
+    with pytest.raises(ValueError, match="give coords"):
+        run_sekf(plant.functions, plant.p, t1, np.zeros((3, 1)), np.zeros((3, 1)), plant.x0)
+    U, X, Y, xh0 = simulate(plant, 300, 6)
+    Xk, zk, _ = run_sekf(plant.functions, plant.p, t1, U, Y, xh0, return_zones=True, coords=co)
+    x, Xr = xh0.copy(), []
+    for k in range(len(U)):
+        z = lab[np.abs(x1 - np.clip(x[0], -20, 20)).argmin()]
+        assert zk[k] == z
+        x = x + t1.gains[z] @ (Y[k] - x[:1])
+        Xr.append(x.copy())
+        x, _, _ = plant.evaluate(x, U[k])
+    np.testing.assert_allclose(Xk, np.array(Xr), rtol=1e-12, atol=1e-12)
+
+
 # ---- zones: gains, k-means, lookup --------------------------------------------------------------
 def test_zone_gains_are_mean_steady_state_gains(plant, build):
     """Each centroid gain = mean of scipy-DARE gains at its member operating points."""
     s, table = build.samples, build.table
-    assert s.failed == 0 and s.points.shape == (1500, 3)
+    assert s.failed == 0 and s.points.shape == (800, 3)
     rng = np.random.default_rng(0)
-    check = rng.choice(len(s.points), 200, replace=False)
+    check = rng.choice(len(s.points), 100, replace=False)
     for i in check:                                 # per-point gains vs scipy directly
         u, x = s.points[i, :1], s.points[i, 1:]
         A, C = plant.linearize(x, u)
@@ -269,7 +296,7 @@ def test_zones_record_roundtrip_through_database(tmp_path, build):
     t2 = ZoneTable.from_record(back.zones)
     for a in ("gains", "centers", "scale", "counts", "labels"):
         np.testing.assert_array_equal(getattr(t2, a), getattr(build.table, a))
-    assert t2.grid == build.table.grid and t2.attrs["N"] == 1500 and t2.k == 3
+    assert t2.grid == build.table.grid and t2.attrs["N"] == 800 and t2.k == 3
     pts = np.random.default_rng(0).uniform(build.samples.lo, build.samples.hi, (50, 3))
     np.testing.assert_array_equal(t2.zone_of(pts), build.table.zone_of(pts))
     Z.save_zones(tmp_path / "z.h5", build.table)
@@ -316,11 +343,11 @@ def test_database_zones(tmp_path):
 
 
 # ---- the acceptance figure, small -------------------------------------------------------------------
-def test_monte_carlo_sekf_close_to_ekf(plant):
+def test_monte_carlo_sekf_close_to_ekf(plant, build):
     """k = 3: SEKF RMSE of x2 within 20 % of the EKF's, mean error within 2 standard errors.
-    (Small: N = 1500, 12 runs of 30 s; `pwl zones` produces the full figures.) A SEKF with the
+    (Small: N = 800, 12 runs of 30 s; `pwl zones` produces the full figures.) A SEKF with the
     wrong gains (x2 row zeroed) must fail the same criterion, so the test can fail."""
-    zb = Z.build_zones(plant, k=3, N=1500, seed=0)
+    zb = build
     wrong = ZoneTable(**{**zb.table.__dict__, "gains": zb.table.gains * np.array([1.0, 0.0])[:, None]})
     rs, re, rw, ms = [], [], [], []
     for run in range(12):

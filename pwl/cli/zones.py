@@ -1,0 +1,395 @@
+"""pwl zones: k-means gain zones (seed paper 001) on the chen2020 system, or on a gain database.
+
+Default (the paper's experiment, docs/zones.md): N random operating points (u, x), steady gains,
+k-means into k zones, then a Monte-Carlo comparison of the scheduled-gain EKF (SEKF) with the
+full EKF on the estimate of x2 (RMSE, mean error), a k sweep, the paper's figures (gain clusters
+in gain space and in (u, x) space, x2 traces, SEKF error histogram) and, with ``--bench``, the
+per-step time of both filters measured in the same run.
+
+With ``--database DB``: cluster the database's per-node update gains into k zones and write a
+copy whose gains are the zone centroids (``--out``), printing the gain error and the sizes.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from numba import njit
+
+njit_lazy = njit(nogil=True)       # the synthetic bench plant compiles only when used
+
+HELP = "k-means gain zones: SEKF vs full EKF on the chen2020 system (figures, k sweep, Monte Carlo, speed)"
+
+
+def add_arguments(p):
+    p.add_argument("--N", type=int, default=10_000, help="random operating points (default 10000)")
+    p.add_argument("-k", "--k", type=int, default=3, help="number of zones (default 3)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the operating points and k-means")
+    p.add_argument("--runs", type=int, default=100, help="Monte-Carlo runs (default 100)")
+    p.add_argument("--steps", type=int, default=6000, help="steps per run (default 6000 = 60 s)")
+    p.add_argument("--kmax", type=int, default=10, help="k sweep 1..kmax (0: no sweep)")
+    p.add_argument("--lookup", type=int, default=41, help="lookup grid points per axis (default 41)")
+    p.add_argument("--label", choices=("nearest", "gain"), default="nearest",
+                   help="lookup-node labels: nearest sample (default) or nearest centre to the node's gain")
+    p.add_argument("--x2-power", type=int, choices=(1, 2), default=1,
+                   help="exponent of x2 in the x2 equation (docs/zones.md; default 1)")
+    p.add_argument("--bench", action="store_true", help="time SEKF vs EKF per step in this run")
+    p.add_argument("--bench-steps", type=int, default=200_000)
+    p.add_argument("--bench-n", default="2,4,8,12",
+                   help="with --bench: state sizes of a synthetic plant for the speed-ratio scaling "
+                        "('' for none)")
+    p.add_argument("--plots", default="pwl_zones",
+                   help="prefix of the PNG figures ('' for none; needs matplotlib)")
+    p.add_argument("--save", help="write the k-zone record to this HDF5 file (/zones group)")
+    p.add_argument("--database", help="cluster the gains of this gain database instead")
+    p.add_argument("--out", help="with --database: write the zone-gain copy here")
+
+
+def run(args) -> int:
+    if args.database:
+        return _run_database(args)
+    from linearize.zones import make_zones, sample_gains, save_zones
+    from models.chen2020 import Chen2020
+
+    plant = Chen2020(x2_power=args.x2_power)
+    t0 = time.perf_counter()
+    samples = sample_gains(plant, args.N, args.seed)
+    t_gain = time.perf_counter() - t0
+    print(f"chen2020 (x2 power {args.x2_power}): {args.N} random operating points (u, x) in "
+          f"u {plant.box_lo[0]:g}..{plant.box_hi[0]:g}, x1 {plant.box_lo[1]:g}..{plant.box_hi[1]:g}, "
+          f"x2 {plant.box_lo[2]:g}..{plant.box_hi[2]:g}; steady gains in {t_gain:.1f} s; "
+          f"{samples.failed} failed (excluded)")
+    for i, msg in samples.failures[:3]:
+        print(f"  failure: {msg}")
+    zb = make_zones(samples, args.k, args.seed, args.lookup, args.label, plant=plant)
+    _print_zones(zb)
+    if args.save:
+        save_zones(args.save, zb.table)
+        print(f"zones record written to {args.save} (/zones, {zb.table.nbytes() / 1e3:.1f} kB)")
+
+    print(f"\nMonte Carlo: {args.runs} runs x {args.steps} steps ({args.steps * plant.dt:g} s), "
+          f"plant noise Q_sim = diag({', '.join(f'{v:g}' for v in np.diag(plant.Q_sim))}), R_sim = {plant.R_sim[0, 0]:g}; "
+          f"filters Q = 0.01 I, R = 0.01")
+    runs = _simulate_runs(plant, args.runs, args.steps)
+    mc = _monte_carlo(plant, zb.table, runs)
+    _print_mc(mc, args.k)
+
+    sweep = None
+    if args.kmax > 0:
+        sweep = []
+        for k in range(1, args.kmax + 1):
+            t = zb.table if k == args.k else make_zones(samples, k, args.seed, args.lookup, args.label,
+                                                        plant=plant).table
+            r = _monte_carlo(plant, t, runs, ekf=mc)
+            sweep.append((k, r))
+        print(f"\nk sweep ({args.runs} runs each, same runs): RMSE of x2")
+        print(f"{'k':>3} {'SEKF RMSE':>10} {'+-SE':>7} {'EKF RMSE':>9} {'ratio':>7} "
+              f"{'mean err':>9} {'2 SE':>7}")
+        for k, r in sweep:
+            print(f"{k:>3} {r['rmse_s'].mean():>10.4f} {r['rmse_s'].std(ddof=1) / np.sqrt(len(runs)):>7.4f} "
+                  f"{r['rmse_e'].mean():>9.4f} {r['ratio']:>7.4f} {r['mean_s']:>9.4f} {2 * r['se_s']:>7.4f}")
+
+    bench = _bench(plant, zb.table, args.bench_steps) if args.bench else None
+    if args.bench and args.bench_n:
+        _bench_scaling([int(v) for v in args.bench_n.split(",")], args.bench_steps // 4)
+    if args.plots:
+        try:
+            files = _plots(args.plots, zb, runs, mc, sweep, plant)
+            print("\nfigures: " + ", ".join(files))
+        except ImportError:
+            print("\n(no figures: install the plot extra, pip install -e '.[plot]')")
+    ok = mc["ratio"] <= 1.2 and abs(mc["mean_s"]) <= 2 * mc["se_s"]
+    print(f"\nacceptance: RMSE ratio {mc['ratio']:.4f} (<= 1.2: {'yes' if mc['ratio'] <= 1.2 else 'NO'}, "
+          f"goal 1.1: {'yes' if mc['ratio'] <= 1.1 else 'no'}); mean error {mc['mean_s']:+.4f} vs 2 SE "
+          f"{2 * mc['se_s']:.4f} ({'yes' if abs(mc['mean_s']) <= 2 * mc['se_s'] else 'NO'})"
+          + (f"; speed ratio {bench:.2f}x (>= 5: {'yes' if bench >= 5 else 'NO'})" if bench else ""))
+    return 0 if ok else 1
+
+
+# ---- pieces ---------------------------------------------------------------------------------------
+def _print_zones(zb):
+    t, s = zb.table, zb.samples
+    print(f"k-means: k = {t.k}, gains scaled by their std {np.array2string(t.scale, precision=4)}, "
+          f"distortion {zb.distortion:.4f}; lookup grid {' x '.join(map(str, t.grid.shape))} "
+          f"({t.attrs['label_method']} labels), record {t.nbytes() / 1e3:.1f} kB")
+    names = [f"K{i + 1}" for i in range(t.gains.shape[1])]
+    print(f"{'zone':>4} {'points':>7} " + " ".join(f"{n:>9}" for n in names) + "   |x1| range of members")
+    for j in range(t.k):
+        m = zb.labels == j
+        x1 = np.abs(s.points[m, 1])
+        print(f"{j:>4} {int(m.sum()):>7} " + " ".join(f"{v:>9.4f}" for v in t.gains[j].ravel())
+              + f"   {x1.min():6.2f} .. {x1.max():6.2f}")
+
+
+def _simulate_runs(plant, runs, steps):
+    out = []
+    for r in range(runs):
+        rng = np.random.default_rng(10_000 + r)
+        U = plant.input_signal(steps, rng)
+        X, Y = plant.simulate(U, rng)
+        xh0 = plant.x0 + rng.multivariate_normal(np.zeros(2), plant.P0)
+        out.append((U, X, Y, xh0))
+    return out
+
+
+def _monte_carlo(plant, table, runs, ekf=None):
+    """RMSE and mean of the x2 error (a-posteriori estimate minus truth) per run, SEKF and EKF."""
+    from ..ekf import run_ekf, run_sekf
+
+    rs, ms, outside, errs = [], [], 0, []
+    re, me, errs_e, traces = [], [], [], []
+    for i, (U, X, Y, xh0) in enumerate(runs):
+        Xs, o = run_sekf(plant.functions, plant.p, table, U, Y, xh0)
+        outside += o
+        es = Xs[:, 1] - X[:-1, 1]
+        rs.append(np.sqrt(np.mean(es ** 2)))
+        ms.append(es.mean())
+        errs.append(es)
+        if ekf is None:
+            Xe, _ = run_ekf(plant.functions, plant.p, U, Y, xh0, plant.P0, plant.Q, plant.R)
+            ee = Xe[:, 1] - X[:-1, 1]
+            re.append(np.sqrt(np.mean(ee ** 2)))
+            me.append(ee.mean())
+            errs_e.append(ee)
+            if i == 0:
+                traces = (X[:-1, 1], Xe[:, 1], Xs[:, 1])
+    if ekf is not None:
+        re, me, errs_e, traces = ekf["rmse_e"], ekf["mean_runs_e"], ekf["err_e"], ekf["traces"]
+    rs, ms, re, me = map(np.asarray, (rs, ms, re, me))
+    n = len(runs)
+    return {"rmse_s": rs, "rmse_e": re, "ratio": rs.mean() / re.mean(), "mean_runs_s": ms,
+            "mean_runs_e": me, "mean_s": ms.mean(), "se_s": ms.std(ddof=1) / np.sqrt(n) if n > 1 else np.inf,
+            "mean_e": me.mean(), "se_e": me.std(ddof=1) / np.sqrt(n) if n > 1 else np.inf,
+            "err_s": errs, "err_e": errs_e, "outside": outside, "traces": traces}
+
+
+def _print_mc(mc, k):
+    n = len(mc["rmse_s"])
+    print(f"{'filter':<10} {'RMSE x2 mean':>13} {'sd':>7} {'min':>7} {'max':>7} {'mean err':>9} {'SE':>7}")
+    for name, r, m, se in (("EKF", mc["rmse_e"], mc["mean_e"], mc["se_e"]),
+                           (f"SEKF k={k}", mc["rmse_s"], mc["mean_s"], mc["se_s"])):
+        print(f"{name:<10} {r.mean():>13.4f} {r.std(ddof=1) if n > 1 else 0:>7.4f} {r.min():>7.4f} "
+              f"{r.max():>7.4f} {m:>+9.4f} {se:>7.4f}")
+    worse = (mc["rmse_s"] > mc["rmse_e"]).mean()
+    print(f"SEKF / EKF RMSE ratio {mc['ratio']:.4f} (per run: median "
+          f"{np.median(mc['rmse_s'] / mc['rmse_e']):.4f}, max {np.max(mc['rmse_s'] / mc['rmse_e']):.4f}; "
+          f"SEKF worse in {100 * worse:.0f} % of runs); SEKF steps outside the lookup box: {mc['outside']}")
+
+
+def _bench(plant, table, steps, reps=9):
+    """Per-step time of the SEKF (uniform lookup and grid-search lookup) and the EKF on the same
+    data, alternating repetitions in this process; min over repetitions."""
+    from ..ekf import ekf_loop, sekf_loop
+
+    rng = np.random.default_rng(1)
+    U = plant.input_signal(steps, rng)
+    X, Y = plant.simulate(U, rng)
+    fn, p = plant.functions, plant.p
+    co = np.arange(3)
+    Xo = np.empty((steps, 2))
+    Z = np.empty(0, np.int64)
+    Pd = np.empty((0, 2))
+    cases = {
+        "SEKF (uniform lookup)": lambda: sekf_loop(fn.f, fn.h, U, Y, plant.x0, p, co, *table.kernel_args(),
+                                                   table.gains, Xo, Z),
+        "SEKF (grid search)": lambda: sekf_loop(fn.f, fn.h, U, Y, plant.x0, p, co,
+                                                *table.kernel_args(force_search=True), table.gains, Xo, Z),
+        "EKF": lambda: ekf_loop(fn.f, fn.jac_f, fn.h, fn.jac_h, U, Y, plant.x0, plant.P0, plant.Q,
+                                plant.R, p, Xo, Pd),
+    }
+    best = {}
+    for c in cases.values():
+        c()                                    # compile / warm up
+    for _ in range(reps):
+        for name, c in cases.items():
+            t0 = time.perf_counter()
+            c()
+            best[name] = min(best.get(name, np.inf), time.perf_counter() - t0)
+    print(f"\nspeed, {steps} steps per run, min of {reps} alternating runs (ns per step, steps/s):")
+    for name, t in best.items():
+        print(f"  {name:<22} {1e9 * t / steps:7.1f} ns   {steps / t:>12,.0f} /s   "
+              f"EKF / this = {best['EKF'] / t:.2f}x")
+    return best["EKF"] / best["SEKF (uniform lookup)"]
+
+
+# a synthetic n-state plant for the speed scaling only (polynomial like chen2020):
+# x+ = x + Ts (-x + s - 0.05 s^3 + u), s = W x;  y = x[:m]
+@njit_lazy
+def _syn_f(x, u, p, out):
+    n, Ts = int(p[0]), p[2]
+    for i in range(n):
+        s = 0.0
+        for j in range(n):
+            s += p[3 + i * n + j] * x[j]
+        out[i] = x[i] + Ts * (-x[i] + s - 0.05 * s * s * s + u[0])
+
+
+@njit_lazy
+def _syn_jf(x, u, p, out):
+    n, Ts = int(p[0]), p[2]
+    for i in range(n):
+        s = 0.0
+        for j in range(n):
+            s += p[3 + i * n + j] * x[j]
+        d = 1.0 - 0.15 * s * s
+        for j in range(n):
+            out[i, j] = Ts * d * p[3 + i * n + j] + ((1.0 - Ts) if i == j else 0.0)
+
+
+@njit_lazy
+def _syn_h(x, u, p, out):
+    for i in range(int(p[1])):
+        out[i] = x[i]
+
+
+@njit_lazy
+def _syn_jh(x, u, p, out):
+    n = int(p[0])
+    for i in range(int(p[1])):
+        for j in range(n):
+            out[i, j] = 1.0 if i == j else 0.0
+
+
+def _bench_scaling(sizes, steps, reps=5):
+    """SEKF vs EKF per step on the synthetic plant for several state sizes n (m = max(1, n // 4)
+    outputs; lookup over (u, x1, x2), 9 nodes per axis, arbitrary zone labels: the cost of a
+    lookup does not depend on the labels)."""
+    from ..ekf import ZoneTable, ekf_loop, sekf_loop
+    from ..grid import Axis, Grid
+
+    print(f"\nspeed ratio versus state size (synthetic plant x+ = x + Ts (-x + s - 0.05 s^3 + u), "
+          f"s = W x, y = x[:m]; {steps} steps, min of {reps}):")
+    print(f"{'n':>4} {'m':>3} {'SEKF ns':>8} {'EKF ns':>8} {'EKF/SEKF':>9}")
+    rng = np.random.default_rng(0)
+    for n in sizes:
+        m = max(1, n // 4)
+        W = rng.normal(size=(n, n)) / np.sqrt(n)
+        p = np.r_[n, m, 0.01, W.ravel()].astype(np.float64)
+        U = rng.uniform(-0.5, 0.5, (steps, 1))
+        Y = 0.1 * rng.normal(size=(steps, m))
+        grid = Grid([Axis(f"c{j}", np.linspace(-1.0, 1.0, 9)) for j in range(3)])
+        co = np.arange(3)
+        k = 3
+        zt = ZoneTable(gains=rng.normal(size=(k, n, m)) * 0.1, grid=grid,
+                       labels=rng.integers(0, k, grid.shape), centers=np.zeros((k, n * m)),
+                       scale=np.ones(n * m), counts=np.ones(k, np.int64))
+        x0, P0, Q, R = np.zeros(n), np.eye(n), 0.01 * np.eye(n), 0.01 * np.eye(m)
+        Xo, Z, Pd = np.empty((steps, n)), np.empty(0, np.int64), np.empty((0, n))
+        cases = {"s": lambda: sekf_loop(_syn_f, _syn_h, U, Y, x0, p, co, *zt.kernel_args(), zt.gains, Xo, Z),
+                 "e": lambda: ekf_loop(_syn_f, _syn_jf, _syn_h, _syn_jh, U, Y, x0, P0, Q, R, p, Xo, Pd)}
+        best = {}
+        for c in cases.values():
+            c()
+        for _ in range(reps):
+            for name, c in cases.items():
+                t0 = time.perf_counter()
+                c()
+                best[name] = min(best.get(name, np.inf), time.perf_counter() - t0)
+        print(f"{n:>4} {m:>3} {1e9 * best['s'] / steps:>8.1f} {1e9 * best['e'] / steps:>8.1f} "
+              f"{best['e'] / best['s']:>8.2f}x")
+
+
+def _plots(prefix, zb, runs, mc, sweep, plant):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t, s = zb.table, zb.samples
+    files = []
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+
+    def save(fig, name):
+        fig.tight_layout()
+        fig.savefig(f"{prefix}_{name}.png", dpi=110)
+        plt.close(fig)
+        files.append(f"{prefix}_{name}.png")
+
+    G = s.gains.reshape(len(s.gains), -1)
+    fig, ax = plt.subplots(figsize=(5.5, 4.5))
+    for j in range(t.k):
+        m = zb.labels == j
+        ax.scatter(G[m, 0], G[m, 1], s=4, color=colors[j % 10], label=f"zone {j} ({m.sum()} points)")
+    g = t.gains.reshape(t.k, -1)
+    ax.scatter(g[:, 0], g[:, 1], marker="x", s=80, color="k", label="centroids")
+    ax.set_xlabel("K1 (gain on x1)")
+    ax.set_ylabel("K2 (gain on x2)")
+    ax.set_title(f"Fig. 1: steady gains, k = {t.k} clusters")
+    ax.legend(fontsize=8)
+    save(fig, "fig1_gain_clusters")
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4.2))
+    for j in range(t.k):
+        m = zb.labels == j
+        axes[0].scatter(s.points[m, 0], s.points[m, 1], s=2, color=colors[j % 10], label=f"zone {j}")
+        axes[1].scatter(s.points[m, 2], s.points[m, 1], s=2, color=colors[j % 10], label=f"zone {j}")
+    axes[0].set_xlabel("u")
+    axes[1].set_xlabel("x2")
+    for a in axes:
+        a.set_ylabel("x1")
+        a.legend(fontsize=8, markerscale=4)
+    fig.suptitle("Fig. 2: zones in the operating space (u, x)")
+    save(fig, "fig2_operating_space")
+
+    x2, xe, xs = mc["traces"]
+    tt = np.arange(len(x2)) * plant.dt
+    fig, axes = plt.subplots(2, 1, figsize=(9, 6.5))
+    for a, sl in ((axes[0], slice(None)), (axes[1], slice(len(tt) // 2, len(tt) // 2 + int(5 / plant.dt)))):
+        a.plot(tt[sl], x2[sl], "k", lw=1.2, label="true x2")
+        a.plot(tt[sl], xe[sl], lw=1.6, alpha=0.8, label="EKF")
+        a.plot(tt[sl], xs[sl], "--", lw=0.9, label=f"SEKF (k = {t.k})")
+        a.set_ylabel("x2")
+        a.grid(alpha=0.3)
+        a.legend(fontsize=8)
+    axes[0].set_title("Fig. 3: x2, true vs EKF vs SEKF (Monte-Carlo run 0)")
+    axes[1].set_title("Fig. 4: zoom (5 s)")
+    axes[1].set_xlabel("time, s")
+    save(fig, "fig3_x2_traces")
+
+    es = np.concatenate(mc["err_s"])
+    ee = np.concatenate(mc["err_e"])
+    fig, ax = plt.subplots(figsize=(6, 4.2))
+    bins = np.linspace(np.percentile(es, 0.1), np.percentile(es, 99.9), 80)
+    ax.hist(es, bins=bins, alpha=0.7, label=f"SEKF: mean {es.mean():+.3f}, sd {es.std():.3f}")
+    ax.hist(ee, bins=bins, histtype="step", color="k", label=f"EKF: mean {ee.mean():+.3f}, sd {ee.std():.3f}")
+    ax.set_xlabel("x2 estimation error")
+    ax.set_ylabel("samples")
+    ax.set_title(f"Fig. 5: SEKF x2 error, {len(mc['err_s'])} runs pooled")
+    ax.legend(fontsize=8)
+    save(fig, "fig5_error_histogram")
+
+    if sweep:
+        ks = [k for k, _ in sweep]
+        rm = np.array([r["rmse_s"].mean() for _, r in sweep])
+        se = np.array([r["rmse_s"].std(ddof=1) / np.sqrt(len(r["rmse_s"])) for _, r in sweep])
+        fig, ax = plt.subplots(figsize=(6, 4.2))
+        ax.errorbar(ks, rm, yerr=se, marker="o", capsize=3, label="SEKF")
+        ax.axhline(sweep[0][1]["rmse_e"].mean(), color="k", ls="--", label="full EKF")
+        ax.set_xlabel("number of zones k")
+        ax.set_ylabel("RMSE of x2 (mean over runs)")
+        ax.set_title("k sweep")
+        ax.set_xticks(ks)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+        save(fig, "k_sweep")
+    return files
+
+
+def _run_database(args) -> int:
+    from linearize.zones import database_zones
+
+    from ..database import GainDatabase
+    from ..ekf import ZoneTable
+
+    db = GainDatabase.open(args.database)
+    record, zoned = database_zones(db, args.k, args.seed)
+    t = ZoneTable.from_record(record)
+    a = t.attrs
+    print(f"{args.database}: {a['N']} dynamics nodes, gains K {db.kalman['K'].shape[-2:]} clustered "
+          f"into k = {t.k} zones (counts {t.counts.tolist()})")
+    print(f"  within-zone gain error |K - K_zone| / |K|: max {a['gain_rel_error_max']:.3g}, "
+          f"mean {a['gain_rel_error_mean']:.3g}")
+    print(f"  /kalman/K {a['K_bytes'] / 1e3:.1f} kB vs zones record {a['record_bytes'] / 1e3:.1f} kB")
+    if args.out:
+        zoned.save(args.out)
+        print(f"  zone-gain copy written to {args.out}")
+    return 0
