@@ -239,8 +239,11 @@ class Turbofan:
         # solver state: last converged unbalanced solve, converged trims (continuation sources)
         self._J = np.zeros((8, 8))
         self._last = None            # (v6, key) of the last converged evaluate
-        self._trims = []             # list of (key (alt, Mach, dT, NfR), h, v8)
-        self._trim_index = {}        # bytes(x, u, h, env) -> v8 (to use a guess dict)
+        self._tk = np.empty((0, 4))  # converged trims: keys (alt, Mach, dT, NfR), health, unknowns
+        self._th = np.empty((0, 10))
+        self._tv = np.empty((0, 8))
+        self._trim_index = {}        # bytes(x, u, h, env) -> v8 (the solver unknowns of a trim)
+        self._xu_index = {}          # bytes(x, u) -> v8 (to use a plain-dict guess)
         self._design_v = self.v_design.copy()
         self._check_design()
 
@@ -372,15 +375,11 @@ class Turbofan:
             u = np.asarray(guess["u"], float)
         except (KeyError, TypeError):
             return None
-        env_h = getattr(guess, "_key", None)
-        if env_h is not None and env_h in self._trim_index:
-            return self._trim_index[env_h].copy()
-        # same (x, u) at any stored environment: the solver unknowns are what we need
-        for k, v in reversed(list(self._trim_index.items())):
-            a = np.frombuffer(k, dtype=np.float64)
-            if np.array_equal(a[:2], x) and a[2] == u[0]:
-                return v.copy()
-        return None
+        key = getattr(guess, "_key", None)
+        if key is not None and key in self._trim_index:
+            return self._trim_index[key].copy()
+        v = self._xu_index.get(np.concatenate([x.reshape(-1), u.reshape(-1)]).tobytes())
+        return None if v is None else v.copy()
 
     def _finish_trim(self, v, s, key, h, env):
         x = np.array([s[gp.S_NFRPM], s[gp.S_NCRPM]])
@@ -389,11 +388,15 @@ class Turbofan:
         k = self._tkey(x, u, h, env)
         out._key = k
         self._trim_index[k] = v.copy()
-        if len(self._trim_index) > 20000:
-            self._trim_index.pop(next(iter(self._trim_index)))
-        self._trims.append((key.copy(), h.copy(), v.copy()))
-        if len(self._trims) > 5000:
-            self._trims.pop(0)
+        self._xu_index[np.concatenate([x, u]).tobytes()] = v.copy()
+        for d in (self._trim_index, self._xu_index):
+            if len(d) > 20000:
+                d.pop(next(iter(d)))
+        if len(self._tk) >= 5000:
+            self._tk, self._th, self._tv = self._tk[1000:], self._th[1000:], self._tv[1000:]
+        self._tk = np.vstack([self._tk, key])
+        self._th = np.vstack([self._th, h])
+        self._tv = np.vstack([self._tv, v])
         self._last = v[:6].copy()
         return out
 
@@ -401,10 +404,11 @@ class Turbofan:
         best = (np.array([0.0, 0.0, 0.0, 100.0]), np.zeros(len(H_NAMES)), self._design_v)
         scale = np.array([12000.0, 0.85, 30.0, 40.0])
         dbest = np.sum(((key - best[0]) / scale) ** 2) + np.sum((h / 0.02) ** 2)
-        for k, hh, v in self._trims:
-            d = np.sum(((key - k) / scale) ** 2) + np.sum(((h - hh) / 0.02) ** 2)
-            if d < dbest:
-                best, dbest = (k, hh, v), d
+        if len(self._tk):
+            d = np.sum(((self._tk - key) / scale) ** 2, axis=1) + np.sum(((self._th - h) / 0.02) ** 2, axis=1)
+            i = int(np.argmin(d))
+            if d[i] < dbest:
+                best = (self._tk[i], self._th[i], self._tv[i])
         return best
 
     def _continue_trim(self, k0, h0, v0, k1, h1):
