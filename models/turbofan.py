@@ -517,5 +517,44 @@ def design_table(model: Turbofan | None = None) -> str:
     return "\n".join(rows)
 
 
+def influence(model: Turbofan, p, dh=-0.01):
+    """Influence coefficients at fixed corrected fan speed: for dh on each health parameter, the
+    change of Wf and of every y (%), and of every z (% for Fn and T40, points for stall margins).
+    Returns (column names, {health name: row array})."""
+    env = model.environment(p)
+    t0 = model.trim(p, None, env)
+    names = ["Wf"] + list(model.y_names[1:]) + list(model.z_names)
+    a0 = np.concatenate([t0["u"], t0["y"][1:], t0["z"]])
+    rows = {}
+    for j, hn in enumerate(H_NAMES):
+        h = np.zeros(len(H_NAMES))
+        h[j] = dh
+        t = model.trim(p, h, env, guess=t0)
+        a = np.concatenate([t["u"], t["y"][1:], t["z"]])
+        d = 100.0 * (a - a0) / np.abs(a0)
+        d[-3:] = a[-3:] - a0[-3:]
+        rows[hn] = d
+    return names, rows
+
+
+def influence_table(model: Turbofan | None = None, p=None, dh=-0.01) -> str:
+    """The influence table as markdown (rows: health parameters; columns: Wf, y, z)."""
+    m = model or Turbofan()
+    p = np.asarray(p if p is not None else operating_points(m)[1][1], dtype=np.float64)
+    names, rows = influence(m, p, dh)
+    units = ["%"] * (len(names) - 3) + ["pt"] * 3
+    out = ["| " + f"{dh:+g} on | " + " | ".join(f"{n} {u}" for n, u in zip(names, units)) + " |",
+           "|---|" + "---:|" * len(names)]
+    for hn, d in rows.items():
+        out.append(f"| {hn} | " + " | ".join(f"{x:+.3f}" for x in d) + " |")
+    return "\n".join(out)
+
+
 if __name__ == "__main__":
-    print(design_table())
+    _m = Turbofan()
+    print("Design-point table\n")
+    print(design_table(_m))
+    for _label, _p in operating_points(_m)[1:]:
+        print(f"\nInfluence of -1 % on each health parameter at {_label}, fixed corrected fan speed "
+              "(Wf, y, Fn, T40 in % of value; stall margins in points)\n")
+        print(influence_table(_m, _p))
