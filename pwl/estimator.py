@@ -12,12 +12,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .database import GainDatabase
+from .grid import Axis, Grid
 from .h5io import atomic_h5, write_strings
 from .logs import Log, read_header, read_log, read_rows
 from .runtime import (FLAG_DYN_OUTSIDE, FLAG_HELD_INPUT, FLAG_NO_UPDATE, FLAG_NOT_STARTED,
                       FLAG_TRIM_OUTSIDE, PackedModel, filter_loop)
+from .tables import LAWS, AdaptiveTable, TableError
 
 OUTPUTS = ("x_hat", "q_hat", "h_hat", "y_hat", "residual", "z_hat")
+BIAS_PREFIX = "bias_"   # bias tables are stored as /tables/bias_<channel>
 
 
 class EnvelopeError(ValueError):
@@ -26,7 +29,10 @@ class EnvelopeError(ValueError):
 
 @dataclass
 class Result:
-    """Estimates for one log: each output (n, k) in physical units, flags (n,) int64."""
+    """Estimates for one log: each output (n, k) in physical units, flags (n,) int64.
+
+    Outputs: x_hat, q_hat, h_hat, y_hat (a priori, bias included), residual, z_hat, and
+    ``bias_hat`` (the bias tables' values at the operating point) when the estimator has them."""
 
     time: np.ndarray
     outputs: dict[str, np.ndarray]
@@ -36,7 +42,7 @@ class Result:
     attrs: dict = field(default_factory=dict)
 
     def __getattr__(self, name):
-        if name in OUTPUTS:
+        if name in self.__dict__.get("outputs", {}):
             return self.outputs[name]
         raise AttributeError(name)
 
@@ -57,7 +63,7 @@ class Result:
         """HDF5 (atomic) or, for a ``.csv`` path, CSV with ``output.name`` columns."""
         if os.fspath(path).lower().endswith(".csv"):
             cols = {"time": self.time, "flags": self.flags}
-            for o in OUTPUTS:
+            for o in self.names:
                 for j, n in enumerate(self.names[o]):
                     cols[f"{o}.{n}"] = self.outputs[o][:, j]
             from .logs import write_csv
@@ -74,7 +80,7 @@ def _init_result_file(f, names, source, counts, n):
     f.attrs["source"] = str(source)
     f.create_dataset("time", shape=(n,), maxshape=(None,), dtype="f8", chunks=(8192,))
     f.create_dataset("flags", shape=(n,), maxshape=(None,), dtype="i8", chunks=(8192,))
-    for o in OUTPUTS:
+    for o in names:
         k = len(names[o])
         f.create_dataset(o, shape=(n, k), maxshape=(None, k), dtype="f8", chunks=(8192, max(k, 1)))
         write_strings(f.require_group("names"), o, names[o])
@@ -85,7 +91,7 @@ def _init_result_file(f, names, source, counts, n):
 def _append(f, time, outputs, flags):
     n0 = f["time"].shape[0]
     n1 = n0 + time.size
-    for name, data in [("time", time), ("flags", flags)] + [(o, outputs[o]) for o in OUTPUTS]:
+    for name, data in [("time", time), ("flags", flags)] + list(outputs.items()):
         d = f[name]
         d.resize(n1, axis=0)
         d[n0:n1] = data
@@ -97,9 +103,15 @@ class Estimator:
     ``Estimator(db)`` with a :class:`GainDatabase` or a path. State persists across ``run`` /
     ``step`` calls until :meth:`reset` (one flight = reset, then run). ``tune=False`` gives the
     untuned model (tuners held at ``q0``, default 0: nominal health).
+
+    ``bias``: the tuning element, adaptive bias tables on sensed channels: a dict channel ->
+    :class:`pwl.tables.AdaptiveTable` (from :meth:`new_bias_tables` or :func:`load_bias_tables`),
+    all on one grid over scheduling variables, values in corrected units. They learn from the
+    filter's innovations during runs (unless locked) and keep what they learnt across
+    :meth:`reset` and flights; :meth:`save_bias_tables` persists them.
     """
 
-    def __init__(self, db, q0=None, tune: bool = True):
+    def __init__(self, db, q0=None, tune: bool = True, bias: dict | None = None):
         self.db = db if isinstance(db, GainDatabase) else GainDatabase.open(db)
         self.pm = PackedModel.from_database(self.db, tune=tune)
         db = self.db
@@ -110,7 +122,61 @@ class Estimator:
             if not corr and scale == 1.0:
                 units.setdefault(c, pu)
         self.channel_units = units
+        self._set_bias(bias or {})
         self.reset(q0)
+
+    # ---- bias tables (the tuning element) ---------------------------------------------------
+    def new_bias_tables(self, channels, axes=None, ratio: float = 100.0, law: str = "exact") -> dict:
+        """Fresh zero tables for sensed ``channels`` over ``axes`` (a :class:`Grid`, or None for
+        the dynamics grid's axes), installed in this estimator and returned."""
+        grid = axes if isinstance(axes, Grid) else Grid(
+            [Axis(a.name, a.values, a.unit) for a in self.db.dyn_grid.axes], self.db.policy)
+        tables = {c: AdaptiveTable(grid, law=law, ratio=ratio) for c in channels}
+        self._set_bias(tables)
+        return tables
+
+    def _set_bias(self, tables: dict) -> None:
+        db = self.db
+        ny = db.n("y")
+        grids = {id(t.grid): t.grid for t in tables.values()}
+        grid = next(iter(grids.values())) if tables else Grid([Axis("none", [0.0, 1.0])])
+        for c, t in tables.items():
+            if c not in db.names["y"]:
+                raise TableError(f"bias table {c!r}: not a sensed channel of {db.path} ({db.names['y']})")
+            if t.grid != grid:
+                raise TableError(f"bias table {c!r}: every bias table must share one grid")
+            if t.law not in ("exact", "paper") or t.ratio != next(iter(tables.values())).ratio or \
+                    t.law != next(iter(tables.values())).law:
+                raise TableError(f"bias table {c!r}: law must be exact or paper, the same for all tables")
+        missing = [a.name for a in grid.axes if tables and a.name not in db.names["p"]]
+        if missing:
+            raise TableError(f"bias tables: axes {missing} are not scheduling variables {db.names['p']}")
+        nb = len(tables)
+        self.bias = dict(tables)
+        self._b_slot = np.full(ny, -1, dtype=np.int64)
+        vals = np.zeros((nb, grid.size))
+        counts = np.zeros((nb, grid.size), dtype=np.int64)
+        for j, (c, t) in enumerate(tables.items()):
+            self._b_slot[db.names["y"].index(c)] = j
+            vals[j] = t.values.reshape(-1)
+            counts[j] = t.counts.reshape(-1)
+            t.values, t.counts = vals[j].reshape(grid.shape), counts[j].reshape(grid.shape)  # views
+        self._b_vals, self._b_counts, self._b_grid = vals, counts, grid
+        self._b_pidx = np.array([db.names["p"].index(a.name) for a in grid.axes] if tables else [],
+                                dtype=np.int64)
+        self._b_idx = np.zeros(len(self._b_pidx), dtype=np.int64)
+        first = next(iter(tables.values()), None)
+        self._b_law = LAWS[first.law] if first else 0
+        self._b_ratio = float(first.ratio) if first else 1.0
+        self.names = {k: v for k, v in self.names.items() if k != "bias_hat"}
+        if tables:
+            self.names["bias_hat"] = list(tables)
+
+    def save_bias_tables(self, path) -> None:
+        """Write every bias table to ``/tables/bias_<channel>`` of ``path`` (a gain database or a
+        side file; created if missing; atomic)."""
+        for c, t in self.bias.items():
+            t.save(path, BIAS_PREFIX + c)
 
     # ---- state -------------------------------------------------------------------------------
     def reset(self, q0=None) -> None:
@@ -121,6 +187,7 @@ class Estimator:
         self.state[-1] = 0.0
         self.t_idx = np.zeros(len(self.pm.t_pidx), dtype=np.int64)
         self.d_idx = np.zeros(len(self.pm.d_pidx), dtype=np.int64)
+        self._b_idx[:] = 0
 
     @property
     def input_channels(self) -> list[str]:
@@ -139,17 +206,21 @@ class Estimator:
         TH = one if TH is None else np.ascontiguousarray(TH, dtype=np.float64)
         DE = one if DE is None else np.ascontiguousarray(DE, dtype=np.float64)
         nx, nu, ny, nz, nq, nh = self.pm.dims
-        out = {o: np.empty((n, len(self.names[o]))) for o in OUTPUTS}
+        out = {o: np.empty((n, len(self.names[o]))) for o in self.names}
         flags = np.empty(n, dtype=np.int64)
         tg, dg, pm, db = self.db.trim_grid, self.db.dyn_grid, self.pm, self.db
+        bg = self._b_grid
+        learn = np.array([t.enabled for t in self.bias.values()], dtype=np.bool_)
         filter_loop(U, Y, S, TH, DE,
                     pm.trim_tab, tg.bp, tg.off, tg.strides, pm.t_pidx,
                     pm.dyn_tab, dg.bp, dg.off, dg.strides, pm.d_pidx, tg.extrapolate,
                     pm.dims, pm.ex, pm.cls,
                     pm.s_scale, pm.s_corr, db.tuner["V_pinv"], db.tuner["h_ref"],
                     self.state, self.t_idx, self.d_idx,
+                    self._b_slot, self._b_vals, self._b_counts, bg.bp, bg.off, bg.strides, self._b_pidx,
+                    self._b_idx, self._b_law, self._b_ratio, learn,
                     out["x_hat"], out["q_hat"], out["h_hat"], out["y_hat"], out["residual"],
-                    out["z_hat"], flags)
+                    out["z_hat"], out.get("bias_hat", np.empty((n, 0))), flags)
         t = np.arange(n, dtype=np.float64) * db.dt if time is None else np.asarray(time, dtype=np.float64)
         return Result(t, out, flags, self.names)
 
@@ -183,7 +254,7 @@ class Estimator:
         log = Log(np.zeros(1), {k: np.array([float(v)]) for k, v in sample.items()}, {}, path="<sample>")
         res = self.run_arrays(*self._split(log))
         self._check_envelope(res.flags, res.time, "<sample>")
-        out = {o: dict(zip(self.names[o], res.outputs[o][0])) for o in OUTPUTS}
+        out = {o: dict(zip(self.names[o], res.outputs[o][0])) for o in self.names}
         out["flags"] = int(res.flags[0])
         return out
 
@@ -223,6 +294,15 @@ class Estimator:
             for k, v in counts.items():
                 f.attrs[k] = v
         return counts
+
+
+def load_bias_tables(path) -> dict:
+    """Bias tables saved by :meth:`Estimator.save_bias_tables`: channel -> AdaptiveTable."""
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        names = [k for k in f.get("tables", {}) if k.startswith(BIAS_PREFIX)]
+    return {k[len(BIAS_PREFIX):]: AdaptiveTable.load(path, k) for k in names}
 
 
 # ---- many logs ---------------------------------------------------------------------------------

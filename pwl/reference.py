@@ -11,11 +11,26 @@ import numpy as np
 from .database import GainDatabase
 
 
+def node_weights(axes, point):
+    """Multilinear weights of every grid node at ``point`` (inside the grid), shape (size,):
+    the tensor product of per-axis hat functions, from np.interp of unit vectors."""
+    w = np.ones(1)
+    for a, x in zip(axes, point):
+        wa = np.array([np.interp(x, a, np.eye(len(a))[i]) for i in range(len(a))])
+        w = np.multiply.outer(w, wa).reshape(-1)
+    return w
+
+
 class ReferenceFilter:
-    def __init__(self, db: GainDatabase):
+    """``bias``: optional channel -> (axes list of breakpoint arrays, axis names, values
+    (grid shape, corrected units; updated in place), noise ratio) with the exact table gain
+    written out from its closed form (DESIGN.md section 3)."""
+
+    def __init__(self, db: GainDatabase, bias=None):
         from scipy.interpolate import RegularGridInterpolator
 
         self.db = db
+        self.bias = bias or {}
         ext = db.policy == "extrapolate"
         self.ext = ext
 
@@ -81,7 +96,21 @@ class ReferenceFilter:
             xm = M["A"] @ xi + M["B"] @ du
             fy = self.factor("y", th, de)
             yh = tr["y"] + M["C"] @ xm + M["D"] @ du
+            learn = []
+            for c, (axes, names, vals, ratio) in self.bias.items():
+                pb = np.array([p[db.names["p"].index(n)] for n in names])
+                inside = all(a[0] <= v <= a[-1] for a, v in zip(axes, pb))
+                pb = np.clip(pb, [a[0] for a in axes], [a[-1] for a in axes])
+                w = node_weights(axes, pb)
+                i = db.names["y"].index(c)
+                yh[i] += w @ vals.reshape(-1)
+                learn.append((i, w, vals, ratio, inside))
             r = Y[k] / fy - yh
+            for i, w, vals, ratio, inside in learn:
+                if inside:
+                    c2 = w @ w
+                    pbar = (1 + np.sqrt(1 + 4 * ratio / c2)) / 2
+                    vals.reshape(-1)[:] += pbar * w / (pbar * c2 + ratio) * r[i]
             xp = xm + M["K"] @ r
             z = tr["z"] + M["F"] @ xp + M["G"] @ du
             xa = tr["x"] + xp[:nx]

@@ -29,6 +29,7 @@ from numba import njit
 from .database import GainDatabase
 from .grid import locate
 from .interp import corner_weights, interp_rows
+from .tables import table_predict, table_update
 
 FLAG_NO_UPDATE = 1        # a measurement was NaN: prediction only
 FLAG_HELD_INPUT = 2       # an input, schedule or theta/delta channel was NaN: last value held
@@ -69,7 +70,8 @@ def filter_loop(U, Y, S, TH, DE,
                 dyn_tab, d_bp, d_off, d_str, d_pidx, extrapolate,
                 dims, ex, cls, s_scale, s_corr, V_pinv, h_ref,
                 state, t_idx, d_idx,
-                out_x, out_q, out_h, out_yhat, out_res, out_z, out_flags):
+                b_slot, b_vals, b_counts, b_bp, b_off, b_str, b_pidx, b_idx, b_law, b_ratio, b_learn,
+                out_x, out_q, out_h, out_yhat, out_res, out_z, out_bias, out_flags):
     """Run the filter over n samples; state and search hints are updated in place (chunkable).
 
     U (n, nu), Y (n, ny), S (n, ns) raw log channels; TH, DE (n,) theta and delta (ones when the
@@ -79,6 +81,16 @@ def filter_loop(U, Y, S, TH, DE,
     in the order x, u, y, z, schedule (pair 0 is (0, 0)). Outputs (n, .) in
     physical (uncorrected) units: x_hat, q_hat, h_hat, y_hat (a priori), residual y - y_hat,
     z_hat (a posteriori); out_flags (n,) int64. Returns the number of samples processed.
+
+    Bias tables (the tuning element; nb = b_vals.shape[0], 0 for none): one adaptive table per
+    biased sensed channel, all on one grid (b_bp, b_off, b_str; b_pidx its axes among the
+    scheduling variables; b_idx the search hint), values (nb, nodes) and visit counts in
+    corrected units. b_slot (ny,) maps a sensed channel to its table (-1: none). Each step the
+    tables' prediction is added to the predicted measurement (the bias is pre-positioned at the
+    operating point) and, when the point is inside the table grid and the step has a
+    measurement update, every table with b_learn[c] learns from its channel's innovation with the
+    steady-state table gain (law b_law, noise ratio b_ratio; pwl.tables). out_bias (n, nb) in
+    physical units.
     """
     nx, nu, ny, nz, nq, nh = dims[0], dims[1], dims[2], dims[3], dims[4], dims[5]
     na = nx + nq
@@ -112,6 +124,15 @@ def filter_loop(U, Y, S, TH, DE,
     xm = np.empty(na)
     res = np.empty(ny)
     fac = np.ones(ex.shape[0])
+    nb = b_vals.shape[0]
+    nbd = b_pidx.shape[0]
+    b_frac = np.empty(nbd)
+    b_wts = np.empty(1 << nbd)
+    b_rows = np.empty(1 << nbd, dtype=np.int64)
+    pb = np.empty(nbd)
+    bias = np.zeros(max(nb, 1))
+    bm = 0
+    b_out = 0
     cx, cu, cy, cz, cs = 0, nx, nx + nu, nx + nu + ny, nx + nu + ny + nz
     th_prev = -1.0
     de_prev = -1.0
@@ -163,6 +184,8 @@ def filter_loop(U, Y, S, TH, DE,
                 out_res[k, j] = np.nan
             for j in range(nz):
                 out_z[k, j] = np.nan
+            for j in range(nb):
+                out_bias[k, j] = np.nan
             continue
         if state[oth] != th_prev or state[ode] != de_prev:
             th_prev = state[oth]
@@ -186,6 +209,13 @@ def filter_loop(U, Y, S, TH, DE,
         interp_rows(trim_tab, t_wts, t_rows, m, tw)
         m = corner_weights(d_idx, d_frac, d_str, d_wts, d_rows)
         interp_rows(dyn_tab, d_wts, d_rows, m, dw)
+        if nb > 0:  # the bias tables: one more search (their own grid), weights shared by all
+            for j in range(nbd):
+                pb[j] = p[b_pidx[j]]
+            b_out = locate(b_bp, b_off, pb, extrapolate, b_idx, b_frac)
+            bm = corner_weights(b_idx, b_frac, b_str, b_wts, b_rows)
+            for c in range(nb):
+                bias[c] = table_predict(b_vals[c], b_wts, b_rows, bm)
         # ---- start at trim on the first valid sample
         if state[ost] == 0.0:
             for j in range(nx):
@@ -213,6 +243,8 @@ def filter_loop(U, Y, S, TH, DE,
                 s += dw[oC + i * na + j] * xm[j]
             for j in range(nu):
                 s += dw[oD + i * nu + j] * du[j]
+            if b_slot[i] >= 0:
+                s += bias[b_slot[i]]
             fy = fac[cls[cy + i]]
             yk = Y[k, i]
             if yk != yk:
@@ -225,6 +257,13 @@ def filter_loop(U, Y, S, TH, DE,
             out_yhat[k, i] = s * fy
         if not update:
             flags |= FLAG_NO_UPDATE
+        for i in range(ny):
+            c = b_slot[i]
+            if c >= 0:
+                out_bias[k, c] = bias[c] * fac[cls[cy + i]]
+                if update and b_learn[c] and b_out == 0:
+                    table_update(b_vals[c], b_counts[c], b_wts, b_rows, bm, res[i], b_law, b_ratio,
+                                 b_frac)
         # ---- measurement update
         for i in range(na):
             s = xm[i]

@@ -230,3 +230,52 @@ def test_untuned_model_keeps_tuners_fixed():
     np.testing.assert_allclose(r.q_hat, np.tile([0.5, -0.25], (50, 1)), rtol=1e-14)
     tuned = Estimator(db).run_arrays(U, Y, S, TH, DE)
     assert np.abs(tuned.q_hat[-1]).max() > 1e-3
+
+
+@pytest.mark.parametrize("axes", [None, ("p1",)])
+def test_bias_tables_equal_reference(axes, tmp_path):
+    """The runtime's bias tables (pre-positioned bias + exact-gain learning from the innovation)
+    against the reference's closed-form table update and RegularGridInterpolator-free weights."""
+    from pwl.grid import Axis, Grid
+
+    db = names_db()
+    est = Estimator(db)
+    grid = None
+    if axes:
+        grid = Grid([Axis("p1", [50.0, 70.0, 80.0, 100.0])])
+    tabs = est.new_bias_tables(["y0", "y2"], grid, ratio=5.0)
+    tabs["y2"].values[...] = np.linspace(-0.1, 0.1, tabs["y2"].grid.size).reshape(tabs["y2"].grid.shape)
+    g = tabs["y0"].grid
+    ref_bias = {c: ([a.values for a in g.axes], [a.name for a in g.axes], t.values.copy(), 5.0)
+                for c, t in tabs.items()}
+    U, Y, S, TH, DE = inputs(db, n=300)
+    Y[:, 0] += 0.05  # a sensor offset to learn
+    res = est.run_arrays(U, Y, S, TH, DE)
+    ref = ReferenceFilter(db, bias=ref_bias).run(U, Y, S, TH, DE)
+    for o, v in ref.items():
+        np.testing.assert_allclose(res.outputs[o], v, rtol=1e-10, atol=1e-10 * np.abs(v).max(initial=1.0),
+                                   err_msg=o)
+    for c, t in tabs.items():
+        np.testing.assert_allclose(t.values, ref_bias[c][2], rtol=1e-10, atol=1e-12)
+    assert tabs["y0"].counts.sum() > 0 and np.abs(tabs["y0"].values).max() > 1e-3
+    # persisted and reloaded: a new estimator continues from what was learnt
+    from pwl.estimator import load_bias_tables
+    est.save_bias_tables(tmp_path / "bias.h5")
+    again = load_bias_tables(tmp_path / "bias.h5")
+    np.testing.assert_array_equal(again["y0"].values, tabs["y0"].values)
+    est2 = Estimator(db, bias=again)
+    assert est2.names["bias_hat"] == ["y0", "y2"]
+    # a locked table predicts but does not learn
+    again["y0"].lock()
+    before = again["y0"].values.copy()
+    est2.run_arrays(U, Y, S, TH, DE)
+    np.testing.assert_array_equal(again["y0"].values, before)
+    assert not np.array_equal(again["y2"].values, ref_bias["y2"][2] * 0)
+
+
+def test_bias_table_on_unknown_channel_is_named():
+    from pwl.tables import TableError
+
+    est = Estimator(names_db())
+    with pytest.raises(TableError, match="'nope'"):
+        est.new_bias_tables(["nope"])
