@@ -81,9 +81,9 @@ def ambient(alt, mach, dT, C, amb):
 
 @njit(cache=True, nogil=True)
 def smin(a, b, eps):
-    """Smooth minimum (C-infinity): min(a, b) rounded over a width ~eps."""
-    d = a - b
-    return 0.5 * (a + b - math.sqrt(d * d + eps * eps))
+    """Smooth minimum -eps ln(exp(-a/eps) + exp(-b/eps)) (analytic; written in its overflow-free
+    form): below min(a, b) by eps ln 2 where a = b, by ~eps exp(-|a - b|/eps) away from it."""
+    return min(a, b) - eps * math.log1p(math.exp(-abs(a - b) / eps))
 
 
 @njit(cache=True, nogil=True)
@@ -91,7 +91,7 @@ def nozzle(W, Pt, Tt, Pamb, A, gam, cp, R, Cv, eps):
     """Convergent nozzle: (ideal flow through area A, gross thrust of flow W, ok).
 
     The exit pressure ratio is the smooth minimum of Pt/Pamb and the critical ratio, so the
-    choked/unchoked transition is C-infinity (flow is exact away from a band ~eps around it).
+    choked/unchoked transition is C-infinity (flow is exact to ~1e-4 outside a band of a few eps).
     """
     PR = Pt / Pamb
     if not (PR > 1.0 + 1e-9) or not (Tt > 0.0):
