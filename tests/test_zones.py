@@ -365,3 +365,34 @@ def test_monte_carlo_sekf_close_to_ekf(plant, build):
     assert np.mean(rw) / np.mean(re) > 1.2
     se = np.std(ms, ddof=1) / np.sqrt(len(ms))
     assert abs(np.mean(ms)) < 2 * se + 1e-12, (np.mean(ms), se)
+
+
+def test_compare_database_zone_vs_interpolated(tmp_path):
+    """The turbofan comparison's code path on the synthetic database: with the interpolated
+    estimator's own outputs as truth, the interpolated error is 0 and the zone one is not."""
+    from pwl.cli.zones import compare_database
+    from pwl.estimator import Estimator
+    from pwl.logs import Log, write_log
+
+    db = make_database(dyn_shape=(4, 5), correction=False)
+    db.schedule = [("p0", False, 1.0), ("p1", False, 1.0)]
+    db.save(tmp_path / "db.h5")
+    est = Estimator(db)
+    n = 400
+    t = np.arange(n) * db.dt
+    rng = np.random.default_rng(0)
+    ch = {c: 1.5 + 0.1 * rng.normal(size=n) for c in est.input_channels}
+    ch.update(p0=np.linspace(1, 9, n), p1=np.linspace(52, 98, n))
+    log = Log(t, ch, {c: est.channel_units.get(c, "") for c in ch})
+    r = est.run(log)
+    log.truth = {z: r.channel("z_hat", z) for z in db.names["z"]}
+    log.truth.update({h: np.zeros(n) for h in db.names["h"]})
+    write_log(tmp_path / "log.h5", log)
+    res = compare_database(tmp_path / "db.h5", [tmp_path / "log.h5"], k=2, settle=0.0,
+                           out=tmp_path / "zoned.h5")
+    assert [row[1] for row in res["rows"]] == db.names["z"]
+    for _, _, si, sz, mi, mz in res["rows"]:
+        assert si == pytest.approx(0.0, abs=1e-9) and sz > 1e-6 and np.isfinite(sz)
+    assert res["sizes"]["record_bytes"] == ZoneTable.from_record(res["record"]).nbytes()
+    assert GainDatabase.open(tmp_path / "zoned.h5").zones is not None
+    assert "zones RMS" in res["text"] and len(res["health"]) == 1

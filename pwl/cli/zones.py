@@ -43,6 +43,10 @@ def add_arguments(p):
     p.add_argument("--save", help="write the k-zone record to this HDF5 file (/zones group)")
     p.add_argument("--database", help="cluster the gains of this gain database instead")
     p.add_argument("--out", help="with --database: write the zone-gain copy here")
+    p.add_argument("--logs", nargs="+", help="with --database: logs with truth to compare zone "
+                   "gains with interpolated gains (default: the shipped demo flights for the demo database)")
+    p.add_argument("--settle", type=float, default=120.0,
+                   help="with --logs: seconds at the start of a log left out of the error figures")
 
 
 def run(args) -> int:
@@ -82,12 +86,15 @@ def run(args) -> int:
                                                         plant=plant).table
             r = _monte_carlo(plant, t, runs, ekf=mc)
             sweep.append((k, r))
-        print(f"\nk sweep ({args.runs} runs each, same runs): RMSE of x2")
-        print(f"{'k':>3} {'SEKF RMSE':>10} {'+-SE':>7} {'EKF RMSE':>9} {'ratio':>7} "
+        print(f"\nk sweep ({args.runs} runs each, same runs): RMSE of x2; per-run ratio SEKF/EKF "
+              "(paired: mean +- standard error)")
+        print(f"{'k':>3} {'SEKF RMSE':>10} {'EKF RMSE':>9} {'ratio':>7} {'per-run ratio':>14} "
               f"{'mean err':>9} {'2 SE':>7}")
         for k, r in sweep:
-            print(f"{k:>3} {r['rmse_s'].mean():>10.4f} {r['rmse_s'].std(ddof=1) / np.sqrt(len(runs)):>7.4f} "
-                  f"{r['rmse_e'].mean():>9.4f} {r['ratio']:>7.4f} {r['mean_s']:>9.4f} {2 * r['se_s']:>7.4f}")
+            pr = r["rmse_s"] / r["rmse_e"]
+            print(f"{k:>3} {r['rmse_s'].mean():>10.4f} {r['rmse_e'].mean():>9.4f} {r['ratio']:>7.4f} "
+                  f"{pr.mean():>8.4f}+-{pr.std(ddof=1) / np.sqrt(len(pr)):.4f} "
+                  f"{r['mean_s']:>+9.4f} {2 * r['se_s']:>7.4f}")
 
     bench = _bench(plant, zb.table, args.bench_steps) if args.bench else None
     if args.bench and args.bench_n:
@@ -359,37 +366,116 @@ def _plots(prefix, zb, runs, mc, sweep, plant):
 
     if sweep:
         ks = [k for k, _ in sweep]
+        fig, axes = plt.subplots(1, 2, figsize=(10, 4.2))
         rm = np.array([r["rmse_s"].mean() for _, r in sweep])
-        se = np.array([r["rmse_s"].std(ddof=1) / np.sqrt(len(r["rmse_s"])) for _, r in sweep])
-        fig, ax = plt.subplots(figsize=(6, 4.2))
-        ax.errorbar(ks, rm, yerr=se, marker="o", capsize=3, label="SEKF")
-        ax.axhline(sweep[0][1]["rmse_e"].mean(), color="k", ls="--", label="full EKF")
-        ax.set_xlabel("number of zones k")
-        ax.set_ylabel("RMSE of x2 (mean over runs)")
-        ax.set_title("k sweep")
-        ax.set_xticks(ks)
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
+        axes[0].plot(ks, rm, marker="o", label="SEKF")
+        axes[0].axhline(sweep[0][1]["rmse_e"].mean(), color="k", ls="--", label="full EKF")
+        axes[0].set_ylabel("RMSE of x2, mean over runs")
+        pr = [r["rmse_s"] / r["rmse_e"] for _, r in sweep]
+        axes[1].errorbar(ks, [v.mean() for v in pr], yerr=[v.std(ddof=1) / np.sqrt(len(v)) for v in pr],
+                         marker="o", capsize=3, label="per-run RMSE ratio, mean +- SE")
+        axes[1].axhline(1.0, color="k", ls="--", lw=0.8)
+        axes[1].set_ylabel("SEKF / EKF RMSE (paired runs)")
+        for a in axes:
+            a.set_xlabel("number of zones k")
+            a.set_xticks(ks)
+            a.grid(alpha=0.3)
+            a.legend(fontsize=8)
+        fig.suptitle(f"k sweep, {len(sweep[0][1]['rmse_s'])} Monte-Carlo runs")
         save(fig, "k_sweep")
     return files
 
 
 def _run_database(args) -> int:
+    """Zones of a gain database; with logs (default: the shipped demo flights when the demo
+    database is used), the estimation errors with zone gains versus interpolated gains."""
+    import os
+
+    from ..bench import demo_paths
+
+    logs = args.logs
+    if logs is None:
+        d_db, d_logs = demo_paths()
+        if os.path.abspath(args.database) == os.path.abspath(d_db):
+            logs = [p for p in d_logs if os.path.exists(p)]
+    res = compare_database(args.database, logs or [], args.k, args.seed, args.settle, args.out)
+    print(res["text"])
+    return 0
+
+
+def compare_database(db_path, logs, k: int = 3, seed: int = 0, settle: float = 120.0, out=None) -> dict:
+    """Cluster a database's gains into k zones (:func:`linearize.zones.database_zones`) and run
+    the estimator with interpolated gains and with zone gains over ``logs`` that carry truth.
+
+    Returns {"text": printable report, "rows": [(log, channel, rms_interp, rms_zone, mean_interp,
+    mean_zone)] in % of truth, "health": [(log, names, interp, zone, truth)] median estimates,
+    "sizes": {...} bytes}."""
+    import os
+    import tempfile
+
     from linearize.zones import database_zones
 
     from ..database import GainDatabase
     from ..ekf import ZoneTable
+    from ..estimator import Estimator
+    from ..logs import read_log
+    from ..trending import snapshot
+    from .demo import errors
 
-    db = GainDatabase.open(args.database)
-    record, zoned = database_zones(db, args.k, args.seed)
+    db = GainDatabase.open(db_path)
+    record, zoned = database_zones(db, k, seed)
     t = ZoneTable.from_record(record)
     a = t.attrs
-    print(f"{args.database}: {a['N']} dynamics nodes, gains K {db.kalman['K'].shape[-2:]} clustered "
-          f"into k = {t.k} zones (counts {t.counts.tolist()})")
-    print(f"  within-zone gain error |K - K_zone| / |K|: max {a['gain_rel_error_max']:.3g}, "
-          f"mean {a['gain_rel_error_mean']:.3g}")
-    print(f"  /kalman/K {a['K_bytes'] / 1e3:.1f} kB vs zones record {a['record_bytes'] / 1e3:.1f} kB")
-    if args.out:
-        zoned.save(args.out)
-        print(f"  zone-gain copy written to {args.out}")
-    return 0
+    lines = [f"{db_path}: {a['N']} dynamics nodes, gains K {db.kalman['K'].shape[-2:]} clustered into "
+             f"k = {t.k} zones (counts {t.counts.tolist()})",
+             f"  within-zone gain error |K - K_zone| / |K|: max {a['gain_rel_error_max']:.3g}, "
+             f"mean {a['gain_rel_error_mean']:.3g}"]
+    if out:
+        zoned.save(out)
+        zpath = out
+    else:
+        fd, zpath = tempfile.mkstemp(suffix=".h5")
+        os.close(fd)
+        zoned.save(zpath)
+    sizes = {"K_bytes": a["K_bytes"], "record_bytes": a["record_bytes"],
+             "file_bytes": os.path.getsize(db_path), "zoned_file_bytes": os.path.getsize(zpath)}
+    if not out:
+        os.remove(zpath)
+    lines.append(f"  gains: /kalman/K {sizes['K_bytes'] / 1e3:.1f} kB (one gain per node, interpolated) "
+                 f"vs zones record {sizes['record_bytes'] / 1e3:.1f} kB (k gains + a label per node); "
+                 f"files {sizes['file_bytes'] / 1e6:.2f} MB vs {sizes['zoned_file_bytes'] / 1e6:.2f} MB "
+                 "(the zoned copy keeps a K per node for the runtime, holding its zone's centroid)")
+    if out:
+        lines.append(f"  zone-gain copy written to {out}")
+    rows, health = [], []
+    if logs:
+        ei, ez = Estimator(db), Estimator(zoned)
+        for path in logs:
+            log = read_log(path)
+            ri, rz = ei.run(log), ez.run(log)
+            name = os.path.splitext(os.path.basename(os.fspath(path)))[0]
+            settled = log.time >= log.time[0] + settle
+            for ch in db.names["z"]:
+                if ch in log.truth:
+                    (si, mi), (sz, mz) = (errors(r.channel("z_hat", ch), log.truth[ch], settled)
+                                          for r in (ri, rz))
+                    rows.append((name, ch, si, sz, mi, mz))
+            names = db.names["h"]
+            if names and any(h in log.truth for h in names):
+                hi = snapshot(ri.time, ri.h_hat, ri.flags, names, path, settle).values
+                hz = snapshot(rz.time, rz.h_hat, rz.flags, names, path, settle).values
+                tr = np.array([np.mean(log.truth[h]) if h in log.truth else np.nan for h in names])
+                health.append((name, list(names), hi, hz, tr))
+        lines.append(f"\nestimation error, % of truth after the first {settle:g} s (RMS / mean):")
+        lines.append(f"{'log':<20} {'output':<8} {'interp RMS':>11} {'zones RMS':>10} {'interp mean':>12} "
+                     f"{'zones mean':>11}")
+        for name, ch, si, sz, mi, mz in rows:
+            lines.append(f"{name:<20} {ch:<8} {si:>11.3f} {sz:>10.3f} {mi:>12.3f} {mz:>11.3f}")
+        for name, names, hi, hz, tr in health:
+            lines.append(f"health, % (median estimate), {name}:")
+            lines.append(f"  {'':<8} " + " ".join(f"{n:>10}" for n in names))
+            for lab, v in (("interp", hi), ("zones", hz), ("truth", tr)):
+                lines.append(f"  {lab:<8} " + " ".join(f"{100 * x:>10.3f}" for x in v))
+    else:
+        lines.append("  (no logs with truth given: --logs to compare estimation errors)")
+    return {"text": "\n".join(lines), "rows": rows, "health": health, "sizes": sizes, "record": record}
