@@ -299,8 +299,6 @@ def build(spec: BuildSpec, out_path, *, plant=None, executor: Executor | None = 
             trim[k].reshape(tg.size, -1)[i] /= fac[k]
 
     # ---- noise covariances per dynamics point (corrected units: noise scales with the value)
-    D = dg.shape
-    nx, ny, nh = len(names["x"]), len(names["y"]), len(names["h"])
     pts = []
     for i in range(dg.size):
         d = dyn["point"][i]
@@ -309,53 +307,10 @@ def build(spec: BuildSpec, out_path, *, plant=None, executor: Executor | None = 
                     "Qh": np.diag(q_h ** 2),
                     "R": np.diag((r_frac * np.maximum(np.abs(d["trim_y"]), 1e-12)) ** 2),
                     "z_scale": np.maximum(np.abs(d["trim_z"]), 1e-9)})
-    Ph = np.diag(h_sig ** 2)
-
-    # ---- tuners
-    bar = Progress("tuners", 1, progress)
-    V, metric, mse, ranking = select_subset(pts, spec.n_tuners, Ph, targets,
-                                            lambda d, n: (setattr(bar, "total", n), bar.update(d)))
-    subset_metric = metric
-    sel = [names["h"][int(np.argmax(r))] for r in V]
-    log(f"tuners (subset, n = {spec.n_tuners}): {', '.join(sel)}; metric {metric:.4g}; runner-up "
-        + ", ".join(f"{[names['h'][j] for j in S]} {m:.4g}" for m, S in ranking[1:3]))
-    q_names = sel
-    if spec.tuner_method == "optimal":
-        bar = Progress("optimal", 40, progress)
-        V, metric, mse = optimal_tuners(pts, V, Ph, targets, progress=lambda d, n: bar.update(d))
-        q_names = [f"q{j + 1}" for j in range(spec.n_tuners)]
-        log(f"optimal tuners: metric {metric:.4g} (best subset {subset_metric:.4g})")
-    Vp = np.linalg.pinv(V)
-    per_target = {t: float(np.sqrt(m)) for t, m in zip(_target_names(spec, names), mse)}
-
-    # ---- steady-state gains
-    na = nx + spec.n_tuners
-    K = np.zeros((dg.size, na, ny))
-    P = np.zeros((dg.size, na, na))
-    Q = np.zeros((dg.size, na, na))
-    R = np.zeros((dg.size, ny, ny))
-    k_ok = np.ones(dg.size, bool)
-    k_err = {}
-    for i, pt in enumerate(pts):
-        aug = augment(pt["mats"], Vp)
-        Q[i, :nx, :nx] = pt["Qx"]
-        Q[i, nx:, nx:] = V @ pt["Qh"] @ V.T
-        R[i] = pt["R"]
-        try:
-            K[i], P[i] = steady_state_gain(aug["A"], aug["C"], Q[i], R[i], where=f"dynamics point {i}")
-        except GainError as e:
-            k_ok[i] = False
-            k_err[i] = str(e)
-    k_ok &= dyn["status"] == COMPUTED  # a replaced point takes its donor's gain too
-    k_donor = nearest_good(dg, k_ok)
-    if (k_donor < 0).any():
-        raise BuildError(f"no dynamics point has a usable Kalman gain: {k_err}")
-    k_status = np.where(k_ok, COMPUTED, REPLACED).astype(np.int8)
-    for i in np.flatnonzero(~k_ok):
-        K[i], P[i], Q[i], R[i] = K[k_donor[i]], P[k_donor[i]], Q[k_donor[i]], R[k_donor[i]]
-    k_donor[k_ok] = -1
-    if k_err:
-        log(f"kalman: {len(k_err)} gains replaced by the nearest good point: {k_err}")
+    fd = design_filter(pts, names, dg, dyn["status"], spec.n_tuners, spec.tuner_method,
+                       np.diag(h_sig ** 2), targets, progress, log)
+    D = dg.shape
+    na, ny = len(names["x"]) + spec.n_tuners, len(names["y"])
 
     ex = proto.correction_exponents(plant)
     corr = None
@@ -366,20 +321,19 @@ def build(spec: BuildSpec, out_path, *, plant=None, executor: Executor | None = 
     units = {k: [plant.units[n] for n in names[k]] for k in names}
     units["q"] = ["-"] * spec.n_tuners
     db = GainDatabase(
-        names={**names, "q": q_names}, units=units, trim_grid=tg, dyn_grid=dg,
+        names={**names, "q": fd["q_names"]}, units=units, trim_grid=tg, dyn_grid=dg,
         trim={k: trim[k] for k in "xuyz"}, trim_status=trim_status,
         dynamics={m: dyn[m].reshape(D + dyn[m].shape[1:]) for m in "ABCDFGLMN"},
         dyn_status=dyn["status"].reshape(D), dyn_donor=dyn["donor"].reshape(D),
-        tuner={"V": V, "V_pinv": Vp, "h_ref": h0},
-        kalman={"K": K.reshape(D + (na, ny)), "P": P.reshape(D + (na, na)),
-                "Q": Q.reshape(D + (na, na)), "R": R.reshape(D + (ny, ny))},
-        kalman_status=k_status.reshape(D), kalman_donor=k_donor.reshape(D), dt=spec.dt,
+        tuner={"V": fd["V"], "V_pinv": np.linalg.pinv(fd["V"]), "h_ref": h0},
+        kalman={k: fd[k].reshape(D + fd[k].shape[1:]) for k in ("K", "P", "Q", "R")},
+        kalman_status=fd["status"].reshape(D), kalman_donor=fd["donor"].reshape(D), dt=spec.dt,
         schedule=proto.schedule(plant), correction=corr,
         attrs={"model": spec.plant, "model_name": plant.name,
                "model_parameters": plant.parameters(), "spec": spec.text,
-               "tuner_method": spec.tuner_method, "tuner_metric": metric,
-               "tuner_subset_metric": subset_metric, "tuner_rms_error": per_target,
-               "tuner_targets": _target_names(spec, names), "discretization": "zoh",
+               "tuner_method": spec.tuner_method, "tuner_metric": fd["metric"],
+               "tuner_subset_metric": fd["subset_metric"], "tuner_rms_error": fd["rms_error"],
+               "tuner_targets": list(fd["rms_error"]), "discretization": "zoh",
                "build_seconds": time.perf_counter() - t_start,
                "trim_failures": {k: v for k, v in trim_errors.items() if v},
                "dynamics_failures": dyn_errors},
@@ -389,6 +343,60 @@ def build(spec: BuildSpec, out_path, *, plant=None, executor: Executor | None = 
         parts.remove()
     log(f"wrote {out_path} in {time.perf_counter() - t_start:.1f} s")
     return db
+
+
+def design_filter(pts, names, dg, dyn_status, n_tuners, method, Ph, targets, progress=False,
+                  log=print) -> dict:
+    """Phases 3-4: tuners V by covariance analysis, then the steady-state gain at every point.
+
+    pts: per dynamics point (flat order) dicts of discrete corrected ``mats`` A..N, ``Qx``,
+    ``Qh`` (health random walk), ``R`` and ``z_scale``; dyn_status (flat) marks replaced points,
+    which take their donor's gain. Returns V (nq, nh), q_names, metric, subset_metric,
+    rms_error (target -> RMS error), K, P, Q, R stacked over the points, status and donor.
+    """
+    nx, ny = len(names["x"]), len(names["y"])
+    every = names["h"] + names["z"]
+    bar = Progress("tuners", 1, progress)
+    V, metric, mse, ranking = select_subset(pts, n_tuners, Ph, targets,
+                                            lambda d, n: (setattr(bar, "total", n), bar.update(d)))
+    subset_metric = metric
+    q_names = [names["h"][int(np.argmax(r))] for r in V]
+    log(f"tuners (subset, n = {n_tuners}): {', '.join(q_names)}; metric {metric:.4g}; runner-up "
+        + ", ".join(f"{[names['h'][j] for j in S]} {m:.4g}" for m, S in ranking[1:3]))
+    if method == "optimal":
+        bar = Progress("optimal", 40, progress)
+        V, metric, mse = optimal_tuners(pts, V, Ph, targets, progress=lambda d, n: bar.update(d))
+        q_names = [f"q{j + 1}" for j in range(n_tuners)]
+        log(f"optimal tuners: metric {metric:.4g} (best subset {subset_metric:.4g})")
+    Vp = np.linalg.pinv(V)
+    na = nx + n_tuners
+    n = len(pts)
+    K, P, Q, R = np.zeros((n, na, ny)), np.zeros((n, na, na)), np.zeros((n, na, na)), np.zeros((n, ny, ny))
+    ok = np.ones(n, bool)
+    errs = {}
+    for i, pt in enumerate(pts):
+        aug = augment(pt["mats"], Vp)
+        Q[i, :nx, :nx] = pt["Qx"]
+        Q[i, nx:, nx:] = V @ pt["Qh"] @ V.T
+        R[i] = pt["R"]
+        try:
+            K[i], P[i] = steady_state_gain(aug["A"], aug["C"], Q[i], R[i], where=f"dynamics point {i}")
+        except GainError as e:
+            ok[i] = False
+            errs[i] = str(e)
+    ok &= np.asarray(dyn_status).reshape(-1) == COMPUTED  # a replaced point takes its donor's gain
+    donor = nearest_good(dg, ok)
+    if (donor < 0).any():
+        raise BuildError(f"no dynamics point has a usable Kalman gain: {errs}")
+    for i in np.flatnonzero(~ok):
+        K[i], P[i], Q[i], R[i] = K[donor[i]], P[donor[i]], Q[donor[i]], R[donor[i]]
+    donor[ok] = -1
+    if errs:
+        log(f"kalman: {len(errs)} gains replaced by the nearest good point: {errs}")
+    return {"V": V, "q_names": q_names, "metric": metric, "subset_metric": subset_metric,
+            "rms_error": {every[t]: float(np.sqrt(m)) for t, m in zip(targets, mse)},
+            "K": K, "P": P, "Q": Q, "R": R, "status": np.where(ok, COMPUTED, REPLACED).astype(np.int8),
+            "donor": donor}
 
 
 def point_label(grid, p) -> str:
@@ -410,11 +418,6 @@ def _targets(spec, names):
             raise SpecError(f"{spec.path}: [tuners] target {t!r} is neither 'h' nor a health or "
                             f"unmeasured-output name")
     return list(dict.fromkeys(out))
-
-
-def _target_names(spec, names):
-    every = names["h"] + names["z"]
-    return [every[i] for i in _targets(spec, names)]
 
 
 def _trims(spec, ref, names, h0, executor, parts, progress):
@@ -521,3 +524,43 @@ def _dynamics(spec, ref, plant, names, h0, trim, executor, parts, progress):
     donor[good] = -1
     out["donor"] = donor
     return out, {k: v for k, v in errors.items()}
+
+
+def retune(db: GainDatabase, *, n_tuners: int, method: str = "subset", targets=("h",),
+           q_x=None, q_h=1e-4, health_sigma=0.02, progress: bool = False, log=print) -> GainDatabase:
+    """A copy of ``db`` with new tuners and gains, from its stored matrices and covariances:
+    phases 3-4 without the plant. Sensor noise as stored; state noise as stored or from ``q_x``
+    (fraction of the trim value per step), tuner noise from ``q_h``."""
+    import dataclasses
+
+    from pwl.interp import interpolate
+
+    names = {k: db.names[k] for k in ("x", "u", "y", "z", "h")}
+    dg, nx = db.dyn_grid, db.n("x")
+    z_trim = interpolate(db.trim_grid, db.trim["z"], dg.nodes())
+    x_trim = interpolate(db.trim_grid, db.trim["x"], dg.nodes())
+    q_h = per_channel(q_h, names["h"], "q_h", db.path)
+    Qx = db.kalman["Q"].reshape(dg.size, nx + db.n("q"), -1)[:, :nx, :nx]
+    if q_x is not None:
+        Qx = np.stack([np.diag((per_channel(q_x, names["x"], "q_x", db.path) * np.abs(x)) ** 2)
+                       for x in x_trim])
+    pts = [{"mats": {m: db.dynamics[m].reshape((dg.size,) + db.dynamics[m].shape[dg.ndim:])[i]
+                     for m in "ABCDFGLMN"},
+            "Qx": Qx[i],
+            "Qh": np.diag(q_h ** 2),
+            "R": db.kalman["R"].reshape(dg.size, db.n("y"), -1)[i],
+            "z_scale": np.maximum(np.abs(z_trim[i]), 1e-9)} for i in range(dg.size)]
+    spec = BuildSpec.__new__(BuildSpec)
+    spec.targets, spec.path = list(targets), db.path
+    fd = design_filter(pts, names, dg, db.dyn_status, n_tuners, method,
+                       np.diag(per_channel(health_sigma, names["h"], "health_sigma", db.path) ** 2),
+                       _targets(spec, names), progress, log)
+    D = dg.shape
+    attrs = dict(db.attrs, tuner_method=method, tuner_metric=fd["metric"],
+                 tuner_subset_metric=fd["subset_metric"], tuner_rms_error=fd["rms_error"],
+                 tuner_targets=list(fd["rms_error"]), retuned={"q_h": q_h.tolist(), "n": n_tuners})
+    return dataclasses.replace(
+        db, names={**db.names, "q": fd["q_names"]}, units={**db.units, "q": ["-"] * n_tuners},
+        tuner={"V": fd["V"], "V_pinv": np.linalg.pinv(fd["V"]), "h_ref": db.tuner["h_ref"]},
+        kalman={k: fd[k].reshape(D + fd[k].shape[1:]) for k in ("K", "P", "Q", "R")},
+        kalman_status=fd["status"].reshape(D), kalman_donor=fd["donor"].reshape(D), attrs=attrs)

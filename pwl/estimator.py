@@ -198,16 +198,21 @@ class Estimator:
         return list(dict.fromkeys(ch))
 
     # ---- core --------------------------------------------------------------------------------
-    def run_arrays(self, U, Y, S, TH=None, DE=None, time=None) -> Result:
-        """Run on arrays U (n, nu), Y (n, ny), S (n, ns) raw channels, TH/DE (n,) theta/delta."""
+    def run_arrays(self, U, Y, S, TH=None, DE=None, time=None, out=None) -> Result:
+        """Run on arrays U (n, nu), Y (n, ny), S (n, ns) raw channels, TH/DE (n,) theta/delta.
+
+        ``out``: optional buffers to reuse, as returned in an earlier result's ``outputs`` plus
+        ``"flags"`` (same n); saves the allocation (and page faults) of long runs."""
         U, Y, S = (np.ascontiguousarray(np.atleast_2d(a), dtype=np.float64) for a in (U, Y, S))
         n = U.shape[0]
         one = np.ones(n)
         TH = one if TH is None else np.ascontiguousarray(TH, dtype=np.float64)
         DE = one if DE is None else np.ascontiguousarray(DE, dtype=np.float64)
         nx, nu, ny, nz, nq, nh = self.pm.dims
-        out = {o: np.empty((n, len(self.names[o]))) for o in self.names}
-        flags = np.empty(n, dtype=np.int64)
+        if out is None or any(out[o].shape != (n, len(self.names[o])) for o in self.names):
+            out = {o: np.empty((n, len(self.names[o]))) for o in self.names}
+            out["flags"] = np.empty(n, dtype=np.int64)
+        flags = out.pop("flags") if "flags" in out else np.empty(n, dtype=np.int64)
         tg, dg, pm, db = self.db.trim_grid, self.db.dyn_grid, self.pm, self.db
         bg = self._b_grid
         learn = np.array([t.enabled for t in self.bias.values()], dtype=np.bool_)

@@ -65,6 +65,18 @@ def correction_factors(ex, theta, delta, fac):
 
 
 @njit(cache=True, nogil=True)
+def _bias_learn(b_slot, b_vals, b_counts, b_wts, b_rows, bm, b_frac, b_law, b_ratio, b_learn, learn,
+                bias, res, fac, cls, cy, out_bias, k):
+    """Bias tables after the residuals: record the bias (physical units), learn from res."""
+    for i in range(b_slot.shape[0]):
+        c = b_slot[i]
+        if c >= 0:
+            out_bias[k, c] = bias[c] * fac[cls[cy + i]]
+            if learn and b_learn[c]:
+                table_update(b_vals[c], b_counts[c], b_wts, b_rows, bm, res[i], b_law, b_ratio, b_frac)
+
+
+@njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
 def filter_loop(U, Y, S, TH, DE,
                 trim_tab, t_bp, t_off, t_str, t_pidx,
                 dyn_tab, d_bp, d_off, d_str, d_pidx, extrapolate,
@@ -257,13 +269,9 @@ def filter_loop(U, Y, S, TH, DE,
             out_yhat[k, i] = s * fy
         if not update:
             flags |= FLAG_NO_UPDATE
-        for i in range(ny):
-            c = b_slot[i]
-            if c >= 0:
-                out_bias[k, c] = bias[c] * fac[cls[cy + i]]
-                if update and b_learn[c] and b_out == 0:
-                    table_update(b_vals[c], b_counts[c], b_wts, b_rows, bm, res[i], b_law, b_ratio,
-                                 b_frac)
+        if nb > 0:
+            _bias_learn(b_slot, b_vals, b_counts, b_wts, b_rows, bm, b_frac, b_law, b_ratio, b_learn,
+                        update and b_out == 0, bias, res, fac, cls, cy, out_bias, k)
         # ---- measurement update
         for i in range(na):
             s = xm[i]
