@@ -116,6 +116,15 @@ def bench_run(db_path=None, log_path=None, n_ref: int = 2000) -> dict:
         est.reset()
         est.run_arrays(U, Y, S, TH, DE, out=dict(bufs))
     t = _best_of(go, repeat=5)
+    est.new_bias_tables([est.db.names["y"][-2]], ratio=1e3)  # a learning bias table on one sensor
+    buf = est.run_arrays(U, Y, S, TH, DE)
+    bufs_b = dict(buf.outputs, flags=buf.flags)
+
+    def go_bias():
+        est.reset()
+        est.run_arrays(U, Y, S, TH, DE, out=dict(bufs_b))
+    t_bias = _best_of(go_bias, repeat=5)
+    est.new_bias_tables([])
     ref = ReferenceFilter(est.db)
     m = min(n_ref, n)
     t0 = time.perf_counter()
@@ -127,5 +136,6 @@ def bench_run(db_path=None, log_path=None, n_ref: int = 2000) -> dict:
     dt = est.db.dt
     return {"database": est.db.path, "log": log.path, "samples": n,
             "pwl_steps_per_s": n / t, "x_real_time": n / t * dt,
+            "pwl_steps_per_s_with_bias_table": n / t_bias,
             "reference_steps_per_s": m / t_ref, "ratio": (n / t) / (m / t_ref),
             "max_rel_diff_vs_reference": diff}

@@ -165,6 +165,8 @@ class Estimator:
         self._b_pidx = np.array([db.names["p"].index(a.name) for a in grid.axes] if tables else [],
                                 dtype=np.int64)
         self._b_idx = np.zeros(len(self._b_pidx), dtype=np.int64)
+        self._b_share = bool(tables) and tuple(a.name for a in grid.axes) == db.dyn_grid.names and all(
+            np.array_equal(a.values, b.values) for a, b in zip(grid.axes, db.dyn_grid.axes))
         first = next(iter(tables.values()), None)
         self._b_law = LAWS[first.law] if first else 0
         self._b_ratio = float(first.ratio) if first else 1.0
@@ -223,7 +225,7 @@ class Estimator:
                     pm.s_scale, pm.s_corr, db.tuner["V_pinv"], db.tuner["h_ref"],
                     self.state, self.t_idx, self.d_idx,
                     self._b_slot, self._b_vals, self._b_counts, bg.bp, bg.off, bg.strides, self._b_pidx,
-                    self._b_idx, self._b_law, self._b_ratio, learn,
+                    self._b_idx, self._b_share, self._b_law, self._b_ratio, learn,
                     out["x_hat"], out["q_hat"], out["h_hat"], out["y_hat"], out["residual"],
                     out["z_hat"], out.get("bias_hat", np.empty((n, 0))), flags)
         t = np.arange(n, dtype=np.float64) * db.dt if time is None else np.asarray(time, dtype=np.float64)

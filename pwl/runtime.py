@@ -82,8 +82,8 @@ def filter_loop(U, Y, S, TH, DE,
                 dyn_tab, d_bp, d_off, d_str, d_pidx, extrapolate,
                 dims, ex, cls, s_scale, s_corr, V_pinv, h_ref,
                 state, t_idx, d_idx,
-                b_slot, b_vals, b_counts, b_bp, b_off, b_str, b_pidx, b_idx, b_law, b_ratio, b_learn,
-                out_x, out_q, out_h, out_yhat, out_res, out_z, out_bias, out_flags):
+                b_slot, b_vals, b_counts, b_bp, b_off, b_str, b_pidx, b_idx, b_share, b_law, b_ratio,
+                b_learn, out_x, out_q, out_h, out_yhat, out_res, out_z, out_bias, out_flags):
     """Run the filter over n samples; state and search hints are updated in place (chunkable).
 
     U (n, nu), Y (n, ny), S (n, ns) raw log channels; TH, DE (n,) theta and delta (ones when the
@@ -96,7 +96,8 @@ def filter_loop(U, Y, S, TH, DE,
 
     Bias tables (the tuning element; nb = b_vals.shape[0], 0 for none): one adaptive table per
     biased sensed channel, all on one grid (b_bp, b_off, b_str; b_pidx its axes among the
-    scheduling variables; b_idx the search hint), values (nb, nodes) and visit counts in
+    scheduling variables; b_idx the search hint; b_share: the grid is the dynamics grid, whose
+    search and weights are reused), values (nb, nodes) and visit counts in
     corrected units. b_slot (ny,) maps a sensed channel to its table (-1: none). Each step the
     tables' prediction is added to the predicted measurement (the bias is pre-positioned at the
     operating point) and, when the point is inside the table grid and the step has a
@@ -215,17 +216,27 @@ def filter_loop(U, Y, S, TH, DE,
             pd[j] = p[d_pidx[j]]
         if locate(t_bp, t_off, pt, extrapolate, t_idx, t_frac) != 0:
             flags |= FLAG_TRIM_OUTSIDE
-        if locate(d_bp, d_off, pd, extrapolate, d_idx, d_frac) != 0:
+        d_out = locate(d_bp, d_off, pd, extrapolate, d_idx, d_frac)
+        if d_out != 0:
             flags |= FLAG_DYN_OUTSIDE
         m = corner_weights(t_idx, t_frac, t_str, t_wts, t_rows)
         interp_rows(trim_tab, t_wts, t_rows, m, tw)
         m = corner_weights(d_idx, d_frac, d_str, d_wts, d_rows)
         interp_rows(dyn_tab, d_wts, d_rows, m, dw)
-        if nb > 0:  # the bias tables: one more search (their own grid), weights shared by all
+        if nb > 0 and b_share:  # the bias tables are on the dynamics grid: its weights serve
+            b_out = d_out
+            bm = m
+            for j in range(m):
+                b_wts[j] = d_wts[j]
+                b_rows[j] = d_rows[j]
+            for j in range(nd):
+                b_frac[j] = d_frac[j]
+        elif nb > 0:  # their own grid: one more search, weights shared by all bias tables
             for j in range(nbd):
                 pb[j] = p[b_pidx[j]]
             b_out = locate(b_bp, b_off, pb, extrapolate, b_idx, b_frac)
             bm = corner_weights(b_idx, b_frac, b_str, b_wts, b_rows)
+        if nb > 0:
             for c in range(nb):
                 bias[c] = table_predict(b_vals[c], b_wts, b_rows, bm)
         # ---- start at trim on the first valid sample

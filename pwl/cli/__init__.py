@@ -21,6 +21,7 @@ COMMANDS = {
     "tables": "pwl.cli.tables",
     "zones": "pwl.cli.zones",
     "bias": "pwl.cli.bias",
+    "biastable": "pwl.cli.biastable",
 }
 
 
