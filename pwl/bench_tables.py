@@ -12,18 +12,12 @@ import numpy as np
 
 from numba import njit
 
+from .bench import _best_of
 from .grid import Axis, Grid, locate
 from .interp import corner_weights
 from .tables import LAW_EXACT, table_predict, table_run, table_update
 
 
-def _best_of(fn, repeat=5):
-    best = np.inf
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
 
 
 @njit(cache=True, nogil=True)

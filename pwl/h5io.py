@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 import tempfile
 
 import h5py
@@ -12,19 +13,25 @@ STR = h5py.string_dtype("utf-8")
 
 
 @contextlib.contextmanager
-def atomic_h5(path, mode_attrs: dict | None = None):
+def atomic_h5(path, mode_attrs: dict | None = None, modify: bool = False):
     """Open a temporary HDF5 file beside ``path``; rename it onto ``path`` only on success.
 
     A crash or exception inside the block removes the temporary file and leaves any existing
-    ``path`` untouched: no half-written files.
+    ``path`` untouched: no half-written files. ``modify``: start from a copy of an existing
+    ``path`` (which must be HDF5) instead of an empty file.
     """
     path = os.fspath(path)
     folder = os.path.dirname(os.path.abspath(path))
     os.makedirs(folder, exist_ok=True)
+    copy = modify and os.path.exists(path)
+    if copy and not h5py.is_hdf5(path):
+        raise OSError(f"{path}: exists and is not an HDF5 file; not touched")
     fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".tmp", dir=folder)
     os.close(fd)
     try:
-        with h5py.File(tmp, "w") as f:
+        if copy:
+            shutil.copyfile(path, tmp)
+        with h5py.File(tmp, "a" if copy else "w") as f:
             for k, v in (mode_attrs or {}).items():
                 f.attrs[k] = v
             yield f

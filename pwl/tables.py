@@ -33,8 +33,6 @@ from __future__ import annotations
 import contextlib
 import math
 import os
-import shutil
-import tempfile
 
 import h5py
 import numpy as np
@@ -42,6 +40,7 @@ from numba import njit
 
 from .database import read_record, write_record
 from .grid import Axis, Grid, locate
+from .h5io import atomic_h5
 from .interp import corner_weights, interp_many
 
 #: gain-law codes of the kernels
@@ -590,25 +589,15 @@ class AdaptiveTable:
 
 @contextlib.contextmanager
 def _modify_h5(path):
-    """Open a temporary copy of ``path`` (or a new file) and rename it onto ``path`` on success."""
-    path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
-    os.makedirs(folder, exist_ok=True)
-    exists = os.path.exists(path)
-    if exists and not h5py.is_hdf5(path):
-        raise TableError(f"{path}: exists and is not an HDF5 file; not touched")
-    fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".tmp", dir=folder)
-    os.close(fd)
+    """A temporary copy of ``path`` (or a new tables file) renamed onto ``path`` on success."""
+    new = not os.path.exists(path)
     try:
-        if exists:
-            shutil.copyfile(path, tmp)
-        with h5py.File(tmp, "a" if exists else "w") as f:
-            if not exists:
+        with atomic_h5(path, modify=True) as f:
+            if new:
                 f.attrs["format"] = "pwl-adaptive-tables"
                 f.attrs["format_version"] = RECORD_VERSION
             yield f
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.remove(tmp)
+    except OSError as e:
+        if "not an HDF5 file" in str(e):
+            raise TableError(str(e)) from None
         raise
