@@ -279,3 +279,15 @@ def test_bias_table_on_unknown_channel_is_named():
     est = Estimator(names_db())
     with pytest.raises(TableError, match="'nope'"):
         est.new_bias_tables(["nope"])
+
+
+def test_run_folder_takes_only_flight_logs(tmp_path):
+    from pwl.cli.run import expand
+
+    db = names_db()
+    db.save(tmp_path / "db.h5")
+    U, Y, S, TH, DE = inputs(db, n=20)
+    write_log(tmp_path / "a.h5", Log(np.arange(20) * 0.015, {"u0": U[:, 0]}, {}))
+    (tmp_path / "junk.h5").write_bytes(b"not hdf5")
+    assert expand([str(tmp_path)]) == [str(tmp_path / "a.h5")]
+    assert expand([str(tmp_path / "db.h5")]) == [str(tmp_path / "db.h5")]  # named files are kept

@@ -16,13 +16,29 @@ def add_arguments(p):
 
 
 def expand(paths):
+    """Files as given; in folders every .csv/.parquet and every HDF5 file that is a flight log
+    (other HDF5 files there, e.g. a gain database or results, are skipped with a note)."""
+    from ..h5io import attr_str
+    from ..logs import FORMAT
+
+    import h5py
+
     out = []
     for p in paths:
-        if os.path.isdir(p):
-            out += sorted(f for ext in ("h5", "hdf5", "csv", "parquet")
-                          for f in glob.glob(os.path.join(p, f"*.{ext}")))
-        else:
+        if not os.path.isdir(p):
             out.append(p)
+            continue
+        for f in sorted(f for ext in ("h5", "hdf5", "csv", "parquet") for f in glob.glob(os.path.join(p, f"*.{ext}"))):
+            if f.lower().endswith((".h5", ".hdf5")):
+                try:
+                    with h5py.File(f, "r") as h:
+                        fmt = attr_str(h, "format")
+                except OSError:
+                    fmt = None
+                if fmt != FORMAT:
+                    print(f"pwl run: skipping {f} (not a flight log: format {fmt!r})", file=sys.stderr)
+                    continue
+            out.append(f)
     return out
 
 
