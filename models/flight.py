@@ -22,7 +22,7 @@ import numpy as np
 from numba import njit
 
 from . import gaspath as gp
-from .turbofan import H_NAMES, PlantError, Turbofan
+from .turbofan import H_NAMES, Y_IDX, Z_IDX, PlantError, Turbofan
 
 DT = 0.015
 
@@ -176,18 +176,10 @@ def _loop(alt, mach, dTa, tra, H, C, ctl, ru_n, ru_hi, ru_lo, x0, v0, wf0, dt, t
         f1 = s[gp.S_DNC]
         X[k, 0] = x[0]
         X[k, 1] = x[1]
-        Y[k, 0] = x[0]
-        Y[k, 1] = x[1]
-        Y[k, 2] = s[gp.S_T24]
-        Y[k, 3] = s[gp.S_PS3]
-        Y[k, 4] = s[gp.S_T3]
-        Y[k, 5] = s[gp.S_T48]
-        Y[k, 6] = s[gp.S_P50]
-        Z[k, 0] = s[gp.S_FN]
-        Z[k, 1] = s[gp.S_T4]
-        Z[k, 2] = s[gp.S_SMF]
-        Z[k, 3] = s[gp.S_SML]
-        Z[k, 4] = s[gp.S_SMH]
+        for j in range(Y_IDX.shape[0]):
+            Y[k, j] = s[Y_IDX[j]]
+        for j in range(Z_IDX.shape[0]):
+            Z[k, j] = s[Z_IDX[j]]
         AMB[k, 0] = amb[0]
         AMB[k, 1] = amb[1]
         ps30 = s[gp.S_PS3]
@@ -338,7 +330,8 @@ def simulate(model: Turbofan | None = None, profile=None, health=None, seed=0, n
     t0 = m.trim(np.array([alt[0], mach[0], nfr0]), H[0], env0)
     v0 = m._trim_index[m._tkey(t0["x"], t0["u"], H[0], env0)][:6].copy()
     X, U = np.empty((n, 2)), np.empty(n)
-    Y, Z, AMB, NFRD = np.empty((n, 7)), np.empty((n, 5)), np.empty((n, 2)), np.empty(n)
+    Y, Z = np.empty((n, Y_IDX.size)), np.empty((n, Z_IDX.size))
+    AMB, NFRD = np.empty((n, 2)), np.empty(n)
     iters = np.zeros(1, dtype=np.int64)
     k, st, total = _loop(alt, mach, dTa, tra, H, m.C, ctl, ncr, ru_hi, ru_lo, t0["x"].copy(), v0,
                          t0["u"][0], dt, 1e-11, X, U, Y, Z, AMB, NFRD, iters)

@@ -54,17 +54,17 @@ DEFAULTS = {
 
 X_NAMES = ("Nf", "Nc")
 U_NAMES = ("Wf",)
-Y_NAMES = ("Nf", "Nc", "T24", "Ps30", "T30", "T48", "P50")
+Y_NAMES = ("Nf", "Nc", "T24", "Ps30", "T30", "T48", "P50", "P15")
 Z_NAMES = ("Fn", "T40", "SmFan", "SmLPC", "SmHPC")
 H_NAMES = ("fan_eff", "fan_flow", "lpc_eff", "lpc_flow", "hpc_eff", "hpc_flow",
            "hpt_eff", "hpt_flow", "lpt_eff", "lpt_flow")
 P_NAMES = ("alt", "Mach", "NfR")
 UNITS = {"Nf": "rpm", "Nc": "rpm", "Wf": "kg/s", "T24": "K", "Ps30": "Pa", "T30": "K", "T48": "K",
-         "P50": "Pa", "Fn": "N", "T40": "K", "SmFan": "%", "SmLPC": "%", "SmHPC": "%",
+         "P50": "Pa", "P15": "Pa", "Fn": "N", "T40": "K", "SmFan": "%", "SmLPC": "%", "SmHPC": "%",
          **{h: "-" for h in H_NAMES}, "alt": "m", "Mach": "-", "NfR": "%", "T2": "K", "P2": "Pa",
          "dTamb": "K", "TRA": "%", "NfR_demand": "%"}
 # station indices of y and z in the station vector
-Y_IDX = np.array([gp.S_NFRPM, gp.S_NCRPM, gp.S_T24, gp.S_PS3, gp.S_T3, gp.S_T48, gp.S_P50])
+Y_IDX = np.array([gp.S_NFRPM, gp.S_NCRPM, gp.S_T24, gp.S_PS3, gp.S_T3, gp.S_T48, gp.S_P50, gp.S_P17])
 Z_IDX = np.array([gp.S_FN, gp.S_T4, gp.S_SMF, gp.S_SML, gp.S_SMH])
 
 TOL = 1e-12          # max |residual| (relative flow / power errors) for convergence
@@ -227,10 +227,10 @@ class Turbofan:
         # central-difference perturbations: relative for x and u, absolute (fractions) for health
         self.perturbation = {"Nf": 1e-3, "Nc": 1e-3, "Wf": 1e-3, **{h: 1e-3 for h in H_NAMES}}
         self.sensor_noise = {"Nf": 0.0025, "Nc": 0.0025, "T24": 0.0075, "Ps30": 0.005,
-                             "T30": 0.0075, "T48": 0.0075, "P50": 0.005}
+                             "T30": 0.0075, "T48": 0.0075, "P50": 0.005, "P15": 0.005}
         ex = {"Nf": (0.5, 0.0), "Nc": (0.5, 0.0), "Wf": (0.5, 1.0), "T24": (1.0, 0.0),
               "T30": (1.0, 0.0), "T48": (1.0, 0.0), "T40": (1.0, 0.0), "Ps30": (0.0, 1.0),
-              "P50": (0.0, 1.0), "Fn": (0.0, 1.0), "SmFan": (0.0, 0.0), "SmLPC": (0.0, 0.0),
+              "P50": (0.0, 1.0), "P15": (0.0, 1.0), "Fn": (0.0, 1.0), "SmFan": (0.0, 0.0), "SmLPC": (0.0, 0.0),
               "SmHPC": (0.0, 0.0)}
         self.correction = {"theta": "T2", "delta": "P2", "T_std": gp.T_STD, "P_std": gp.P_STD,
                            "exponents": ex}

@@ -16,7 +16,7 @@ from .grid import Axis, Grid
 from .h5io import atomic_h5, write_strings
 from .logs import Log, read_header, read_log, read_rows
 from .runtime import (FLAG_DYN_OUTSIDE, FLAG_HELD_INPUT, FLAG_NO_UPDATE, FLAG_NOT_STARTED,
-                      FLAG_TRIM_OUTSIDE, PackedModel, filter_loop)
+                      FLAG_TRIM_OUTSIDE, PackedModel, filter_loop, hat_health)
 from .tables import LAWS, AdaptiveTable, TableError
 
 OUTPUTS = ("x_hat", "q_hat", "h_hat", "y_hat", "residual", "z_hat")
@@ -222,12 +222,13 @@ class Estimator:
                     pm.trim_tab, tg.bp, tg.off, tg.strides, pm.t_pidx,
                     pm.dyn_tab, dg.bp, dg.off, dg.strides, pm.d_pidx, tg.extrapolate,
                     pm.dims, pm.ex, pm.cls,
-                    pm.s_scale, pm.s_corr, db.tuner["V_pinv"], db.tuner["h_ref"],
+                    pm.s_scale, pm.s_corr,
                     self.state, self.t_idx, self.d_idx,
                     self._b_slot, self._b_vals, self._b_counts, bg.bp, bg.off, bg.strides, self._b_pidx,
                     self._b_idx, self._b_share, self._b_law, self._b_ratio, learn,
-                    out["x_hat"], out["q_hat"], out["h_hat"], out["y_hat"], out["residual"],
+                    out["x_hat"], out["q_hat"], out["y_hat"], out["residual"],
                     out["z_hat"], out.get("bias_hat", np.empty((n, 0))), flags)
+        hat_health(out["q_hat"], db.tuner["V_pinv"], db.tuner["h_ref"], out["h_hat"])
         t = np.arange(n, dtype=np.float64) * db.dt if time is None else np.asarray(time, dtype=np.float64)
         return Result(t, out, flags, self.names)
 

@@ -10,7 +10,7 @@ parameter correction:
     y_hat      = y_trim + C_a xi_minus + D_a du
     xi_plus    = xi_minus + K (y_k - y_hat)           (skipped when a measurement is NaN)
     z_hat      = z_trim + F_a xi_plus + G_a du
-    h_hat      = h_ref + V_pinv q
+    h_hat      = h_ref + V_pinv q        (after the loop, for all samples at once: hat_health)
 
 The filter keeps the absolute state x_abs = x_trim + dx, which is equivalent to the trim-shift
 adjustment. Inputs, schedule channels or theta/delta that are NaN are held at their last valid
@@ -80,10 +80,10 @@ def _bias_learn(b_slot, b_vals, b_counts, b_wts, b_rows, bm, b_frac, b_law, b_ra
 def filter_loop(U, Y, S, TH, DE,
                 trim_tab, t_bp, t_off, t_str, t_pidx,
                 dyn_tab, d_bp, d_off, d_str, d_pidx, extrapolate,
-                dims, ex, cls, s_scale, s_corr, V_pinv, h_ref,
+                dims, ex, cls, s_scale, s_corr,
                 state, t_idx, d_idx,
                 b_slot, b_vals, b_counts, b_bp, b_off, b_str, b_pidx, b_idx, b_share, b_law, b_ratio,
-                b_learn, out_x, out_q, out_h, out_yhat, out_res, out_z, out_bias, out_flags):
+                b_learn, out_x, out_q, out_yhat, out_res, out_z, out_bias, out_flags):
     """Run the filter over n samples; state and search hints are updated in place (chunkable).
 
     U (n, nu), Y (n, ny), S (n, ns) raw log channels; TH, DE (n,) theta and delta (ones when the
@@ -91,7 +91,7 @@ def filter_loop(U, Y, S, TH, DE,
     packed as in :class:`PackedModel`. dims = [nx, nu, ny, nz, nq, nh]. Parameter correction:
     ex (nc, 2) the distinct exponent pairs, cls (nx+nu+ny+nz+ns,) int64 the pair of every channel
     in the order x, u, y, z, schedule (pair 0 is (0, 0)). Outputs (n, .) in
-    physical (uncorrected) units: x_hat, q_hat, h_hat, y_hat (a priori), residual y - y_hat,
+    physical (uncorrected) units: x_hat, q_hat, y_hat (a priori), residual y - y_hat,
     z_hat (a posteriori); out_flags (n,) int64. Returns the number of samples processed.
 
     Bias tables (the tuning element; nb = b_vals.shape[0], 0 for none): one adaptive table per
@@ -111,8 +111,8 @@ def filter_loop(U, Y, S, TH, DE,
     n = U.shape[0]
     # packed offsets (must match PackedModel)
     oA = 0
-    oB = oA + na * na
-    oC = oB + na * nu
+    oB = oA + nx * na        # only the state rows of A_a, B_a: the tuner rows are [0 I], [0]
+    oC = oB + nx * nu
     oD = oC + ny * na
     oF = oD + ny * nu
     oG = oF + nz * na
@@ -136,6 +136,8 @@ def filter_loop(U, Y, S, TH, DE,
     xi = np.empty(na)
     xm = np.empty(na)
     res = np.empty(ny)
+    yh = np.empty(ny)
+    zh = np.empty(nz)
     fac = np.ones(ex.shape[0])
     nb = b_vals.shape[0]
     nbd = b_pidx.shape[0]
@@ -190,8 +192,6 @@ def filter_loop(U, Y, S, TH, DE,
                 out_x[k, j] = np.nan
             for j in range(nq):
                 out_q[k, j] = np.nan
-            for j in range(nh):
-                out_h[k, j] = np.nan
             for j in range(ny):
                 out_yhat[k, j] = np.nan
                 out_res[k, j] = np.nan
@@ -251,21 +251,30 @@ def filter_loop(U, Y, S, TH, DE,
             xi[nx + j] = state[oq + j]
         for j in range(nu):
             du[j] = state[ou + j] / fac[cls[cu + j]] - tw[tu + j]
-        for i in range(na):
+        for i in range(nx):
             s = 0.0
             for j in range(na):
                 s += dw[oA + i * na + j] * xi[j]
             for j in range(nu):
                 s += dw[oB + i * nu + j] * du[j]
             xm[i] = s
-        # ---- predicted measurements and residuals (corrected units)
+        for i in range(nx, na):  # tuners: random walk, A_a rows [0 I]
+            xm[i] = xi[i]
+        # ---- predicted measurements and residuals (corrected units); C, D, K, F, G are stored
+        # column by column, so every product is a few contiguous axpys (vectorised)
+        for i in range(ny):
+            yh[i] = tw[ty + i]
+        for j in range(na):
+            c = xm[j]
+            for i in range(ny):
+                yh[i] += dw[oC + j * ny + i] * c
+        for j in range(nu):
+            c = du[j]
+            for i in range(ny):
+                yh[i] += dw[oD + j * ny + i] * c
         update = True
         for i in range(ny):
-            s = tw[ty + i]
-            for j in range(na):
-                s += dw[oC + i * na + j] * xm[j]
-            for j in range(nu):
-                s += dw[oD + i * nu + j] * du[j]
+            s = yh[i]
             if b_slot[i] >= 0:
                 s += bias[b_slot[i]]
             fy = fac[cls[cy + i]]
@@ -285,19 +294,25 @@ def filter_loop(U, Y, S, TH, DE,
                         update and b_out == 0, bias, res, fac, cls, cy, out_bias, k)
         # ---- measurement update
         for i in range(na):
-            s = xm[i]
-            if update:
-                for j in range(ny):
-                    s += dw[oK + i * ny + j] * res[j]
-            xi[i] = s
+            xi[i] = xm[i]
+        if update:
+            for j in range(ny):
+                c = res[j]
+                for i in range(na):
+                    xi[i] += dw[oK + j * na + i] * c
         # ---- outputs
         for i in range(nz):
-            s = tw[tz + i]
-            for j in range(na):
-                s += dw[oF + i * na + j] * xi[j]
-            for j in range(nu):
-                s += dw[oG + i * nu + j] * du[j]
-            out_z[k, i] = s * fac[cls[cz + i]]
+            zh[i] = tw[tz + i]
+        for j in range(na):
+            c = xi[j]
+            for i in range(nz):
+                zh[i] += dw[oF + j * nz + i] * c
+        for j in range(nu):
+            c = du[j]
+            for i in range(nz):
+                zh[i] += dw[oG + j * nz + i] * c
+        for i in range(nz):
+            out_z[k, i] = zh[i] * fac[cls[cz + i]]
         for j in range(nx):
             xa = tw[tx + j] + xi[j]
             state[ox + j] = xa
@@ -305,13 +320,23 @@ def filter_loop(U, Y, S, TH, DE,
         for j in range(nq):
             state[oq + j] = xi[nx + j]
             out_q[k, j] = xi[nx + j]
-        for i in range(nh):
-            s = h_ref[i]
-            for j in range(nq):
-                s += V_pinv[i, j] * xi[nx + j]
-            out_h[k, i] = s
         out_flags[k] = flags
     return n
+
+
+@njit(cache=True, nogil=True)
+def hat_health(q_hat, V_pinv, h_ref, out):
+    """Health estimates h = h_ref + V_pinv q for every sample: out (n, nh) from q_hat (n, nq).
+
+    Done after the step loop, sample by sample in a fixed order (so a one-sample call gives the
+    same bits as a long one): the step loop stays short. NaN tuners give NaN health."""
+    for k in range(q_hat.shape[0]):
+        for i in range(h_ref.shape[0]):
+            s = h_ref[i]
+            for j in range(q_hat.shape[1]):
+                s += V_pinv[i, j] * q_hat[k, j]
+            out[k, i] = s
+    return out
 
 
 def augment(d: dict, V_pinv: np.ndarray) -> dict:
@@ -348,7 +373,8 @@ class PackedModel:
     """A database packed for the kernel: one contiguous row per grid node.
 
     trim_tab: (trim nodes, nx+nu+ny+nz) = [x, u, y, z]; dyn_tab: (dyn nodes, block) =
-    [A_a, B_a, C_a, D_a, F_a, G_a, K] each row-major; the rest are the kernel's plain arrays.
+    [A_a[:nx], B_a[:nx] row-major; C_a, D_a, F_a, G_a, K column-major] (the tuner rows of A_a
+    and B_a, [0 I] and [0], are not stored: the kernel applies them); the rest are plain arrays.
     """
 
     trim_tab: np.ndarray
@@ -375,6 +401,10 @@ class PackedModel:
         if not tune:
             aug["K"] = aug["K"].copy()
             aug["K"][..., db.n("x"):, :] = 0.0
+        nx = db.n("x")
+        aug["A"], aug["B"] = aug["A"][..., :nx, :], aug["B"][..., :nx, :]
+        for k in ("C", "D", "F", "G", "K"):  # column-major: the kernel's products are axpys
+            aug[k] = np.swapaxes(aug[k], -1, -2)
         dyn_tab = np.ascontiguousarray(np.concatenate(
             [aug[k].reshape(dg.size, -1) for k in ("A", "B", "C", "D", "F", "G", "K")], axis=1))
         p = db.names["p"]

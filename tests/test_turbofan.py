@@ -56,12 +56,12 @@ def stations(model, p, h=None):
 def test_protocol_names_units_and_metadata(model):
     assert model.name == "turbofan" and model.time == "continuous"
     assert model.x_names == ("Nf", "Nc") and model.u_names == ("Wf",)
-    assert model.y_names == ("Nf", "Nc", "T24", "Ps30", "T30", "T48", "P50")
+    assert model.y_names == ("Nf", "Nc", "T24", "Ps30", "T30", "T48", "P50", "P15")
     assert model.z_names == ("Fn", "T40", "SmFan", "SmLPC", "SmHPC")
     assert model.h_names == H_NAMES and len(H_NAMES) == 10
     assert model.p_names == ("alt", "Mach", "NfR")
     expected = {"Nf": "rpm", "Nc": "rpm", "Wf": "kg/s", "T24": "K", "Ps30": "Pa", "T30": "K",
-                "T48": "K", "P50": "Pa", "Fn": "N", "T40": "K", "SmFan": "%", "SmLPC": "%",
+                "T48": "K", "P50": "Pa", "P15": "Pa", "Fn": "N", "T40": "K", "SmFan": "%", "SmLPC": "%",
                 "SmHPC": "%", "alt": "m", "Mach": "-", "NfR": "%", "T2": "K", "P2": "Pa"}
     for k, v in expected.items():
         assert model.units[k] == v, k
@@ -69,7 +69,7 @@ def test_protocol_names_units_and_metadata(model):
     assert np.array_equal(model.h_ref, np.zeros(10))
     assert set(model.perturbation) == set(model.x_names + model.u_names + H_NAMES)
     assert model.sensor_noise == {"Nf": 0.0025, "Nc": 0.0025, "T24": 0.0075, "Ps30": 0.005,
-                                  "T30": 0.0075, "T48": 0.0075, "P50": 0.005}
+                                  "T30": 0.0075, "T48": 0.0075, "P50": 0.005, "P15": 0.005}
     c = model.correction
     assert (c["theta"], c["delta"], c["T_std"], c["P_std"]) == ("T2", "P2", 288.15, 101325.0)
     ex = c["exponents"]
