@@ -222,16 +222,21 @@ def _key(spec: BuildSpec, ref) -> str:
 
 def _run(executor, fn, tasks, progress: Progress, on_result):
     """Submit ``tasks`` (name, args) and hand each (name, result or exception) to ``on_result``."""
-    futs = {executor.submit(fn, *args): name for name, args in tasks}
+    if isinstance(executor, SerialExecutor):  # one at a time, each result kept before the next
+        pairs = ((name, executor.submit(fn, *args)) for name, args in tasks)
+    else:
+        futs = {executor.submit(fn, *args): name for name, args in tasks}
+        pairs = ((futs[f], f) for f in as_completed(futs))
     abort = None
-    for fut in as_completed(futs):
-        name = futs[fut]
+    for name, fut in pairs:
         try:
             res = fut.result()
         except Exception as e:  # a failed task is a failed point, recorded by the caller
             res = e
         except BaseException as e:  # an interrupt: keep every other finished result, then stop
             abort = e
+            if isinstance(executor, SerialExecutor):
+                break
             continue
         on_result(name, res)
         progress.update(progress.done + 1)

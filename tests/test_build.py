@@ -284,3 +284,37 @@ def test_validate_linear_plant(tmp_path):
     assert np.abs(tr["error"]).max() < 0.1
     moved = np.abs(tr["truth"][-1] - tr["truth"][0]) / np.abs(tr["truth"][0])
     assert moved.max() > 1e-3  # the step did move the plant
+
+
+def test_killed_build_process_resumes(tmp_path):
+    """SIGKILL a `pwl build` process half-way; the next build reuses every finished power line."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    import slow_plant
+
+    text = SPEC.format(method="subset").replace('plant = "models.linear:LinearPlant"',
+                                                'plant = "slow_plant:SlowPlant"\nparameters = {delay = 0.15}')
+    spec_path = tmp_path / "slow.toml"
+    spec_path.write_text(text)
+    out = tmp_path / "k.h5"
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([os.path.dirname(__file__)] + sys.path))
+    proc = subprocess.Popen([sys.executable, "-m", "pwl", "build", str(spec_path), "-o", str(out),
+                             "--serial", "-q"], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    parts = tmp_path / "k.h5.parts"
+    deadline = time.time() + 60
+    while time.time() < deadline and len(list(parts.glob("trim_*.npz"))) < 1:
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    done = sorted(p.name for p in parts.glob("trim_*.npz"))
+    assert 1 <= len(done) < 3 and not out.exists()
+    slow_plant.CALLS["trim"] = 0
+    db = build(BuildSpec.parse(text, str(spec_path)), out, executor=SerialExecutor(), progress=False, log=quiet)
+    # only the unfinished power lines (4 trims each) and the 4 dynamics points were trimmed again
+    assert slow_plant.CALLS["trim"] == 4 * (3 - len(done)) + 4
+    ref = build(spec(), tmp_path / "ref.h5", executor=SerialExecutor(), progress=False, log=quiet)
+    np.testing.assert_array_equal(db.trim["y"], ref.trim["y"])
