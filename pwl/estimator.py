@@ -153,11 +153,10 @@ class Estimator:
             raise TableError(f"bias tables: axes {missing} are not scheduling variables {db.names['p']}")
         nb = len(tables)
         self.bias = dict(tables)
-        self._b_slot = np.full(ny, -1, dtype=np.int64)
+        self._b_chan = np.array([db.names["y"].index(c) for c in tables], dtype=np.int64)
         vals = np.zeros((nb, grid.size))
         counts = np.zeros((nb, grid.size), dtype=np.int64)
         for j, (c, t) in enumerate(tables.items()):
-            self._b_slot[db.names["y"].index(c)] = j
             vals[j] = t.values.reshape(-1)
             counts[j] = t.counts.reshape(-1)
             t.values, t.counts = vals[j].reshape(grid.shape), counts[j].reshape(grid.shape)  # views
@@ -224,7 +223,7 @@ class Estimator:
                     pm.dims, pm.ex, pm.cls,
                     pm.s_scale, pm.s_corr,
                     self.state, self.t_idx, self.d_idx,
-                    self._b_slot, self._b_vals, self._b_counts, bg.bp, bg.off, bg.strides, self._b_pidx,
+                    self._b_chan, self._b_vals, self._b_counts, bg.bp, bg.off, bg.strides, self._b_pidx,
                     self._b_idx, self._b_share, self._b_law, self._b_ratio, learn,
                     out["x_hat"], out["q_hat"], out["y_hat"], out["residual"],
                     out["z_hat"], out.get("bias_hat", np.empty((n, 0))), flags)

@@ -156,7 +156,7 @@ class Grid:
         return f"Grid({ax}; policy={self.policy})"
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def find_interval(bp, lo, n, x, hint):
     """Index i in [0, n-2] of the cell of axis ``bp[lo:lo+n]`` that holds x (x inside the axis).
 
@@ -181,7 +181,7 @@ def find_interval(bp, lo, n, x, hint):
     return a
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def locate(bp, off, point, extrapolate, idx, frac):
     """Bracket ``point`` (float64, n) on the grid; write cell indices and fractions in place.
 

@@ -15,7 +15,7 @@ from numba import njit
 from .grid import Grid, locate
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def corner_weights(idx, frac, strides, wts, rows):
     """Fill the 2^n corner weights and table rows of the cell (idx, frac); return how many.
 
@@ -41,7 +41,7 @@ def corner_weights(idx, frac, strides, wts, rows):
     return m
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def interp_rows(table, wts, rows, m, out):
     """out[k] = sum_{c<m} wts[c] * table[rows[c], k] for k < out.size (out: float64, block).
 

@@ -64,16 +64,15 @@ def correction_factors(ex, theta, delta, fac):
         fac[c] = _power(theta, ex[c, 0]) * _power(delta, ex[c, 1])
 
 
-@njit(cache=True, nogil=True)
-def _bias_learn(b_slot, b_vals, b_counts, b_wts, b_rows, bm, b_frac, b_law, b_ratio, b_learn, learn,
+@njit(cache=True, nogil=True, inline="always")
+def _bias_learn(b_chan, b_vals, b_counts, b_wts, b_rows, bm, b_frac, b_law, b_ratio, b_learn, learn,
                 bias, res, fac, cls, cy, out_bias, k):
     """Bias tables after the residuals: record the bias (physical units), learn from res."""
-    for i in range(b_slot.shape[0]):
-        c = b_slot[i]
-        if c >= 0:
-            out_bias[k, c] = bias[c] * fac[cls[cy + i]]
-            if learn and b_learn[c]:
-                table_update(b_vals[c], b_counts[c], b_wts, b_rows, bm, res[i], b_law, b_ratio, b_frac)
+    for c in range(b_chan.shape[0]):
+        i = b_chan[c]
+        out_bias[k, c] = bias[c] * fac[cls[cy + i]]
+        if learn and b_learn[c]:
+            table_update(b_vals[c], b_counts[c], b_wts, b_rows, bm, res[i], b_law, b_ratio, b_frac)
 
 
 @njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
@@ -82,7 +81,7 @@ def filter_loop(U, Y, S, TH, DE,
                 dyn_tab, d_bp, d_off, d_str, d_pidx, extrapolate,
                 dims, ex, cls, s_scale, s_corr,
                 state, t_idx, d_idx,
-                b_slot, b_vals, b_counts, b_bp, b_off, b_str, b_pidx, b_idx, b_share, b_law, b_ratio,
+                b_chan, b_vals, b_counts, b_bp, b_off, b_str, b_pidx, b_idx, b_share, b_law, b_ratio,
                 b_learn, out_x, out_q, out_yhat, out_res, out_z, out_bias, out_flags):
     """Run the filter over n samples; state and search hints are updated in place (chunkable).
 
@@ -98,7 +97,7 @@ def filter_loop(U, Y, S, TH, DE,
     biased sensed channel, all on one grid (b_bp, b_off, b_str; b_pidx its axes among the
     scheduling variables; b_idx the search hint; b_share: the grid is the dynamics grid, whose
     search and weights are reused), values (nb, nodes) and visit counts in
-    corrected units. b_slot (ny,) maps a sensed channel to its table (-1: none). Each step the
+    corrected units. b_chan (nb,) the sensed channel of each table. Each step the
     tables' prediction is added to the predicted measurement (the bias is pre-positioned at the
     operating point) and, when the point is inside the table grid and the step has a
     measurement update, every table with b_learn[c] learns from its channel's innovation with the
@@ -272,11 +271,11 @@ def filter_loop(U, Y, S, TH, DE,
             c = du[j]
             for i in range(ny):
                 yh[i] += dw[oD + j * ny + i] * c
+        for c in range(nb):
+            yh[b_chan[c]] += bias[c]
         update = True
         for i in range(ny):
             s = yh[i]
-            if b_slot[i] >= 0:
-                s += bias[b_slot[i]]
             fy = fac[cls[cy + i]]
             yk = Y[k, i]
             if yk != yk:
@@ -290,7 +289,7 @@ def filter_loop(U, Y, S, TH, DE,
         if not update:
             flags |= FLAG_NO_UPDATE
         if nb > 0:
-            _bias_learn(b_slot, b_vals, b_counts, b_wts, b_rows, bm, b_frac, b_law, b_ratio, b_learn,
+            _bias_learn(b_chan, b_vals, b_counts, b_wts, b_rows, bm, b_frac, b_law, b_ratio, b_learn,
                         update and b_out == 0, bias, res, fac, cls, cy, out_bias, k)
         # ---- measurement update
         for i in range(na):

@@ -60,7 +60,7 @@ class TableError(ValueError):
 # ---------------------------------------------------------------------------------------------
 # numba kernels (plain arrays; usable inside other numba loops)
 # ---------------------------------------------------------------------------------------------
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def table_predict(values, wts, rows, m):
     """Table output sum_i wts[i] * values[rows[i]] (values: flat node array).
 
@@ -73,7 +73,7 @@ def table_predict(values, wts, rows, m):
     return s
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def exact_scale(wts, m, ratio):
     """The factor g of the exact gain k_i = g * c_i: g = 1 / (pbar |c|^2) (0 if c = 0)."""
     c2 = 0.0
@@ -127,7 +127,7 @@ def paper_gains(frac, ratio, out):
     return m
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def table_update(values, counts, wts, rows, m, error, law, ratio, frac=None):
     """In place: values[rows[i]] += k_i * error and counts[rows[i]] += 1 for the m active nodes.
 
