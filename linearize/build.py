@@ -260,10 +260,10 @@ def build(spec: BuildSpec, out_path, *, plant=None, executor: Executor | None = 
     else:
         ref = proto.check_plant(plant)
     names = {k: proto.names(plant, k) for k in ("x", "u", "y", "z", "h", "p")}
-    for g, label in ((spec.trim_grid, "trim_grid"), (spec.dyn_grid, "dynamics_grid")):
-        if list(g.names) != names["p"]:
-            raise SpecError(f"{spec.path}: [{label}] axes {list(g.names)} must be the plant's scheduling "
-                            f"variables in order {names['p']}")
+    if list(spec.trim_grid.names) != names["p"]:
+        raise SpecError(f"{spec.path}: [trim_grid] axes {list(spec.trim_grid.names)} must be the plant's "
+                        f"scheduling variables in order {names['p']}")
+    hold = dynamics_hold(spec, names["p"])
     h0 = proto.h_ref(plant)
     for k, v in spec.health_reference.items():
         if k not in names["h"]:
@@ -286,7 +286,7 @@ def build(spec: BuildSpec, out_path, *, plant=None, executor: Executor | None = 
     t_start = time.perf_counter()
     try:
         trim, trim_status, trim_errors = _trims(spec, ref, names, h0, executor, parts, progress)
-        dyn, dyn_errors = _dynamics(spec, ref, plant, names, h0, trim, executor, parts, progress)
+        dyn, dyn_errors = _dynamics(spec, ref, names, h0, trim, hold, executor, parts, progress)
     finally:
         if own:
             executor.shutdown()
@@ -339,6 +339,7 @@ def build(spec: BuildSpec, out_path, *, plant=None, executor: Executor | None = 
                "tuner_method": spec.tuner_method, "tuner_metric": fd["metric"],
                "tuner_subset_metric": fd["subset_metric"], "tuner_rms_error": fd["rms_error"],
                "tuner_targets": list(fd["rms_error"]), "discretization": "zoh",
+               "dynamics_hold": hold,
                "build_seconds": time.perf_counter() - t_start,
                "trim_failures": {k: v for k, v in trim_errors.items() if v},
                "dynamics_failures": dyn_errors},
@@ -487,11 +488,41 @@ def _trims(spec, ref, names, h0, executor, parts, progress):
     return trim, status, errors
 
 
-def _dynamics(spec, ref, plant, names, h0, trim, executor, parts, progress):
+def dynamics_hold(spec, p_names) -> dict:
+    """Scheduling variables the dynamics grid leaves out -> the value they are linearized at.
+
+    The dynamics grid's axes must be some of the plant's scheduling variables, in order; the
+    others are held (``[build] dynamics_hold``, default: the middle of the trim grid's axis).
+    The runtime then schedules the matrices and gains on the dynamics axes only: fewer corners
+    per step, for variables the corrected dynamics hardly depend on."""
+    dn = list(spec.dyn_grid.names)
+    if [p for p in p_names if p in dn] != dn:
+        raise SpecError(f"{spec.path}: [dynamics_grid] axes {dn} must be scheduling variables of the plant, "
+                        f"in the order {list(p_names)}")
+    extra = set(spec.dynamics_hold) - (set(p_names) - set(dn))
+    if extra:
+        raise SpecError(f"{spec.path}: [build] dynamics_hold names {sorted(extra)}, which are not scheduling "
+                        f"variables left out of [dynamics_grid]")
+    tg = spec.trim_grid
+    return {p: float(spec.dynamics_hold.get(p, 0.5 * (tg.axes[j].lo + tg.axes[j].hi)))
+            for j, p in enumerate(p_names) if p not in dn}
+
+
+def full_points(dg, p_names, hold) -> np.ndarray:
+    """Every dynamics grid node as a full scheduling point (size, len(p_names)): held variables
+    at their ``hold`` value."""
+    nodes = dg.nodes()
+    out = np.empty((dg.size, len(p_names)))
+    for j, p in enumerate(p_names):
+        out[:, j] = nodes[:, dg.names.index(p)] if p in dg.names else hold[p]
+    return out
+
+
+def _dynamics(spec, ref, names, h0, trim, hold, executor, parts, progress):
     """Phase 2. ``trim`` (physical units) gives each dynamics point a warm start."""
     tg, dg = spec.trim_grid, spec.dyn_grid
     t_nodes = tg.normalized(tg.nodes())
-    d_nodes = dg.nodes()
+    d_nodes = full_points(dg, names["p"], hold)
     keys = ("trim_x", "trim_u", "trim_y", "trim_z") + tuple("ABCDFGLMN")
     res = [None] * dg.size
     errors = {}
@@ -501,7 +532,7 @@ def _dynamics(spec, ref, plant, names, h0, trim, executor, parts, progress):
         got = parts.get(f"dyn_{i}")
         if got is not None:
             if "error" in got:
-                errors[point_label(dg, p)] = str(got["error"])
+                errors[point_label(tg, p)] = str(got["error"])
             else:
                 res[i] = got
             bar.update(bar.done + 1)
@@ -512,8 +543,8 @@ def _dynamics(spec, ref, plant, names, h0, trim, executor, parts, progress):
 
     def store(i, r):
         if isinstance(r, Exception):
-            errors[point_label(dg, d_nodes[i])] = f"{type(r).__name__}: {r}"
-            parts.put(f"dyn_{i}", {"error": np.array(errors[point_label(dg, d_nodes[i])])})
+            errors[point_label(tg, d_nodes[i])] = f"{type(r).__name__}: {r}"
+            parts.put(f"dyn_{i}", {"error": np.array(errors[point_label(tg, d_nodes[i])])})
         else:
             res[i] = r
             parts.put(f"dyn_{i}", {k: np.asarray(v) for k, v in r.items()})
@@ -542,8 +573,9 @@ def retune(db: GainDatabase, *, n_tuners: int, method: str = "subset", targets=(
 
     names = {k: db.names[k] for k in ("x", "u", "y", "z", "h")}
     dg, nx = db.dyn_grid, db.n("x")
-    z_trim = interpolate(db.trim_grid, db.trim["z"], dg.nodes())
-    x_trim = interpolate(db.trim_grid, db.trim["x"], dg.nodes())
+    pts_full = full_points(dg, db.names["p"], db.attrs.get("dynamics_hold", {}))
+    z_trim = interpolate(db.trim_grid, db.trim["z"], pts_full)
+    x_trim = interpolate(db.trim_grid, db.trim["x"], pts_full)
     q_h = per_channel(q_h, names["h"], "q_h", db.path)
     Qx = db.kalman["Q"].reshape(dg.size, nx + db.n("q"), -1)[:, :nx, :nx]
     if q_x is not None:

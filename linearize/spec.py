@@ -23,6 +23,8 @@ Example (every key but ``model.plant``, ``trim_grid`` and ``dynamics_grid`` has 
     out_of_range = "clip"     # clip | extrapolate | error
     perturbation = {}         # name -> relative size (overrides the plant's)
     health_reference = {}     # name -> value (overrides the plant's h_ref)
+    dynamics_hold = {}        # scheduling variables left out of [dynamics_grid] -> value they are
+                              # linearized at (default: the middle of the trim grid's axis)
 
     [kalman]
     q_x = 1e-3                # state process noise, one sigma per step, fraction of the trim value
@@ -60,6 +62,7 @@ class BuildSpec:
     differences: str = "central"
     perturbation: dict = field(default_factory=dict)
     health_reference: dict = field(default_factory=dict)
+    dynamics_hold: dict = field(default_factory=dict)
     q_x: float | dict = 1e-3
     q_h: float | dict = 1e-4
     r: dict = field(default_factory=dict)
@@ -95,7 +98,7 @@ class BuildSpec:
 
         model, build, kal, tun = section("model", True), section("build"), section("kalman"), section("tuners")
         known = {"model": {"plant", "parameters"}, "build": {"power_axis", "dt", "differences", "out_of_range",
-                                                           "perturbation", "health_reference"},
+                                                           "perturbation", "health_reference", "dynamics_hold"},
                  "kalman": {"q_x", "q_h", "r"}, "tuners": {"method", "n", "targets", "health_sigma"}}
         for name, keys in known.items():
             extra = set(section(name)) - keys
@@ -139,6 +142,7 @@ class BuildSpec:
                    dyn_grid=dg, power_axis=power, dt=dt, differences=diff,
                    perturbation=dict(build.get("perturbation", {})),
                    health_reference=dict(build.get("health_reference", {})),
+                   dynamics_hold={k: float(v) for k, v in build.get("dynamics_hold", {}).items()},
                    q_x=kal.get("q_x", 1e-3), q_h=kal.get("q_h", 1e-4), r=dict(kal.get("r", {})),
                    tuner_method=method, n_tuners=int(tun.get("n", 4)), targets=list(targets),
                    health_sigma=tun.get("health_sigma", 0.02), text=text, path=path)

@@ -67,7 +67,7 @@ def steady_state(db: GainDatabase, plant=None, n: int = 20, seed: int = 0, settl
     est = open_loop(db)
     h = db.tuner["h_ref"]
     pts, errs, failed = [], [], []
-    for p in random_points(db.dyn_grid if db.dyn_grid.size < db.trim_grid.size else db.trim_grid, n, seed):
+    for p in random_points(db.trim_grid, n, seed):  # the trim grid spans every scheduling variable
         env = plant.environment(p)
         try:
             t = plant.trim(p, h, env)
@@ -109,11 +109,11 @@ def simulate(plant, x0, U, h, env, dt: float):
 def fuel_step(db: GainDatabase, plant=None, p=None, step: float = 0.05, seconds: float = 8.0,
               t_step: float = 1.0):
     """Open-loop model vs plant after an input step of ``step`` (fraction) at ``t_step`` s from a
-    trim at ``p`` (default: the middle of the dynamics grid box, off-grid). Returns a dict with
+    trim at ``p`` (default: the middle of the trim grid box, off-grid). Returns a dict with
     time, the plant's and the model's y and z (n, .), and the percent errors."""
     plant = plant or plant_of(db)
     if p is None:
-        p = np.array([0.5 * (a.lo + a.hi) for a in db.dyn_grid.axes]) + 1e-3
+        p = np.array([0.5 * (a.lo + a.hi) for a in db.trim_grid.axes]) + 1e-3
     env = plant.environment(p)
     h = db.tuner["h_ref"]
     t = plant.trim(p, h, env)

@@ -318,3 +318,23 @@ def test_killed_build_process_resumes(tmp_path):
     assert slow_plant.CALLS["trim"] == 4 * (3 - len(done)) + 4
     ref = build(spec(), tmp_path / "ref.h5", executor=SerialExecutor(), progress=False, log=quiet)
     np.testing.assert_array_equal(db.trim["y"], ref.trim["y"])
+
+
+def test_dynamics_grid_on_some_scheduling_variables(tmp_path):
+    """Matrices scheduled on `power` only, `level` held: the runtime interpolates them on one axis;
+    the linear plant's matrices do not depend on the point, so they are still recovered exactly."""
+    text = SPEC.format(method="subset").replace("[dynamics_grid]\nlevel = [0, 2]\n", "[dynamics_grid]\n")
+    text = text.replace("[build]\n", "[build]\ndynamics_hold = {level = 0.5}\n")
+    db = build(BuildSpec.parse(text, "sub.toml"), tmp_path / "s.h5", executor=SerialExecutor(),
+               progress=False, log=quiet)
+    db = GainDatabase.open(tmp_path / "s.h5")
+    assert db.dyn_grid.names == ("power",) and db.attrs["dynamics_hold"] == {"level": 0.5}
+    full = build(spec(), tmp_path / "f.h5", executor=SerialExecutor(), progress=False, log=quiet)
+    np.testing.assert_allclose(db.dynamics["A"][0], full.dynamics["A"][0, 0], atol=1e-12)
+    np.testing.assert_allclose(db.kalman["K"][1], full.kalman["K"][0, 1], rtol=1e-8, atol=1e-12)
+    from linearize.validate import steady_state
+    errs, pts, failed = steady_state(db, n=3, settle_steps=1500)
+    assert not failed and np.abs(errs).max() < 1e-8
+    with pytest.raises(SpecError, match="dynamics_hold"):
+        build(BuildSpec.parse(text.replace("level = 0.5", "power = 0.5"), "bad.toml"), tmp_path / "b.h5",
+              executor=SerialExecutor(), progress=False, log=quiet)

@@ -33,7 +33,7 @@ def run(args) -> int:
         print(f"  (plant trim failed at {np.round(p, 4).tolist()}: {e})")
     worst = float(np.abs(errs).max())
     tr = fuel_step(db, plant, step=args.step)
-    p = ", ".join(f"{a.name}={v:.4g}" for a, v in zip(db.dyn_grid.axes, tr["p"]))
+    p = ", ".join(f"{a.name}={v:.4g}" for a, v in zip(db.trim_grid.axes, tr["p"]))
     table(f"\ntransient: {100 * args.step:g} % input step at {p}, model vs plant:", names, tr["error"])
     worst_tr = float(np.abs(tr["error"]).max())
     print(f"\nworst steady-state error {worst:.3f} %, worst transient error {worst_tr:.3f} %")
