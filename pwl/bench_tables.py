@@ -17,6 +17,8 @@ from .grid import Axis, Grid, locate
 from .interp import corner_weights
 from .tables import LAW_EXACT, table_predict, table_run, table_update
 
+_NONE = np.zeros((0, 0))  # no covariance: the exact law
+
 
 
 
@@ -95,13 +97,13 @@ def bench_tables(n_points: int = 2_000_000, n_ref: int = 20_000, ratio: float = 
         vals = np.zeros(grid.size)
         cnts = np.zeros(grid.size, dtype=np.int64)
         table_run(vals, cnts, grid.bp, grid.off, grid.strides, False, p[:10], refs[:10], LAW_EXACT,
-                  ratio, 0.0, False, pred, hist)  # compile / load from cache
+                  ratio, 0.0, False, pred, hist, _NONE, _NONE, 0.0)  # compile / load from cache
 
         def go():
             vals[:] = 0.0
             cnts[:] = 0
             table_run(vals, cnts, grid.bp, grid.off, grid.strides, False, p, refs, LAW_EXACT, ratio,
-                      0.0, False, pred, hist)
+                      0.0, False, pred, hist, _NONE, _NONE, 0.0)
         t = _best_of(go)
         res[f"numba_updates_per_s_{kind}"] = n_points / t
         res[f"table_rms_error_{kind}"] = float(np.sqrt(np.mean((vals - truth) ** 2)))
@@ -131,7 +133,7 @@ def bench_tables(n_points: int = 2_000_000, n_ref: int = 20_000, ratio: float = 
     v_nb = np.zeros(grid.size)
     c_nb = np.zeros(grid.size, dtype=np.int64)
     table_run(v_nb, c_nb, grid.bp, grid.off, grid.strides, False, np.ascontiguousarray(p),
-              np.ascontiguousarray(refs), LAW_EXACT, ratio, 0.0, False, np.empty(n_ref), hist)
+              np.ascontiguousarray(refs), LAW_EXACT, ratio, 0.0, False, np.empty(n_ref), hist, _NONE, _NONE, 0.0)
     res["max_abs_diff_vs_numpy"] = float(np.abs(v_nb - v_np).max())
     res["counts_equal"] = bool(np.array_equal(c_nb, c_np))
     return res

@@ -213,18 +213,21 @@ def correlated_update(values, P, Sigma, counts, wts, rows, m, error, noise_var, 
 
 @njit(cache=True, nogil=True)
 def table_run(values, counts, bp, off, strides, extrapolate, points, refs, law, ratio, warmup,
-              update_outside, pred, history):
+              update_outside, pred, history, P, Sigma, noise_var):
     """Predict, then learn, at every row of points (k, n) against refs (k,), in order.
 
     pred (k,) receives the a-priori table outputs; if history has k rows, row i receives the
     node values after step i. NaN points or references: prediction only (NaN for a NaN point).
-    Returns (number of points outside the grid, number of updates made).
+    law: LAW_EXACT / LAW_PAPER (ratio, warmup: :func:`count_ratio`) or LAW_CORRELATED (full
+    covariance P updated in place, process noise Sigma, measurement noise_var; empty arrays
+    otherwise). Returns (number of points outside the grid, number of updates made).
     """
     n = points.shape[1]
     idx = np.zeros(n, dtype=np.int64)
     frac = np.zeros(n, dtype=np.float64)
     wts = np.zeros(1 << n, dtype=np.float64)
     rows = np.zeros(1 << n, dtype=np.int64)
+    work = np.zeros(values.shape[0] if law == LAW_CORRELATED else 0, dtype=np.float64)
     keep = history.shape[0] == points.shape[0]
     outside = 0
     updated = 0
@@ -243,43 +246,11 @@ def table_run(values, counts, bp, off, strides, extrapolate, points, refs, law, 
             if flags != 0:
                 outside += 1
             if (flags == 0 or update_outside) and math.isfinite(refs[k]):
-                r = ratio if warmup <= 0.0 else count_ratio(counts, wts, rows, m, ratio, warmup)
-                table_update(values, counts, wts, rows, m, refs[k] - xh, law, r, frac)
-                updated += 1
-        if keep:
-            history[k, :] = values
-    return outside, updated
-
-
-@njit(cache=True, nogil=True)
-def correlated_run(values, P, Sigma, counts, bp, off, strides, extrapolate, points, refs, noise_var,
-                   update_outside, pred, history):
-    """:func:`table_run` for the correlated law (full covariance P kept, every node updated)."""
-    n = points.shape[1]
-    idx = np.zeros(n, dtype=np.int64)
-    frac = np.zeros(n, dtype=np.float64)
-    wts = np.zeros(1 << n, dtype=np.float64)
-    rows = np.zeros(1 << n, dtype=np.int64)
-    work = np.zeros(values.shape[0], dtype=np.float64)
-    keep = history.shape[0] == points.shape[0]
-    outside = 0
-    updated = 0
-    for k in range(points.shape[0]):
-        ok = True
-        for j in range(n):
-            if not math.isfinite(points[k, j]):
-                ok = False
-        if not ok:
-            pred[k] = np.nan
-        else:
-            flags = locate(bp, off, points[k], extrapolate, idx, frac)
-            m = corner_weights(idx, frac, strides, wts, rows)
-            xh = table_predict(values, wts, rows, m)
-            pred[k] = xh
-            if flags != 0:
-                outside += 1
-            if (flags == 0 or update_outside) and math.isfinite(refs[k]):
-                correlated_update(values, P, Sigma, counts, wts, rows, m, refs[k] - xh, noise_var, work)
+                if law == LAW_CORRELATED:
+                    correlated_update(values, P, Sigma, counts, wts, rows, m, refs[k] - xh, noise_var, work)
+                else:
+                    r = ratio if warmup <= 0.0 else count_ratio(counts, wts, rows, m, ratio, warmup)
+                    table_update(values, counts, wts, rows, m, refs[k] - xh, law, r, frac)
                 updated += 1
         if keep:
             history[k, :] = values
@@ -495,12 +466,12 @@ class AdaptiveTable:
         g = self.grid
         vals = self.values.reshape(-1)
         cnts = self.counts.reshape(-1)
-        if self.law == "correlated":
-            out, upd = correlated_run(vals, self.P, self.Sigma, cnts, g.bp, g.off, g.strides, g.extrapolate,
-                                 pts, refs, self.noise_var, self.update_outside, pred, hist)
-        else:
-            out, upd = table_run(vals, cnts, g.bp, g.off, g.strides, g.extrapolate, pts, refs,
-                            self.law_code, self.ratio, self.ratio_warmup, self.update_outside, pred, hist)
+        corr = self.law == "correlated"
+        none = np.zeros((0, 0))
+        out, upd = table_run(vals, cnts, g.bp, g.off, g.strides, g.extrapolate, pts, refs, self.law_code,
+                             self.ratio, self.ratio_warmup, self.update_outside, pred, hist,
+                             self.P if corr else none, self.Sigma if corr else none,
+                             self.noise_var if corr else 0.0)
         self.n_outside += int(out)
         self.n_updates += int(upd)
         return (pred, hist) if history else pred
