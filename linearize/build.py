@@ -27,6 +27,7 @@ from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_complet
 import numpy as np
 
 from pwl.database import COMPUTED, EXTRAPOLATED, FILLED, REPLACED, Correction, GainDatabase
+from pwl.grid import Axis, Grid
 from pwl.runtime import augment
 
 from . import plant as proto
@@ -296,8 +297,9 @@ def build(spec: BuildSpec, out_path, *, plant=None, executor: Executor | None = 
     log(f"dynamics: {spec.dyn_grid.size - len(dyn_errors)}/{spec.dyn_grid.size} computed"
         + "".join(f"\n  failed {p}: {e}" for p, e in sorted(dyn_errors.items())))
 
-    # ---- trims in corrected units
-    tg, dg = spec.trim_grid, spec.dyn_grid
+    # ---- trims in corrected units; grid axes carry the plant's units
+    tg, dg = (Grid([Axis(a.name, a.values, plant.units.get(a.name, "")) for a in g.axes], g.policy)
+              for g in (spec.trim_grid, spec.dyn_grid))
     for i, p in enumerate(tg.nodes()):
         fac = proto.correction_factors(plant, plant.environment(p))
         for k in "xuyz":

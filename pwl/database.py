@@ -330,8 +330,10 @@ class GainDatabase:
                  f"out-of-range policy {self.policy}"]
         if os.path.exists(self.path):
             lines[0] += f" ({os.path.getsize(self.path) / 1e6:.2f} MB)"
+        hold = self.attrs.get("dynamics_hold") or {}
         for label, g in (("trim grid", self.trim_grid), ("dynamics grid", self.dyn_grid)):
-            lines.append(f"  {label}: {' x '.join(map(str, g.shape))} = {g.size} points")
+            held = (", at " + ", ".join(f"{k} = {v:g}" for k, v in hold.items())) if g is self.dyn_grid and hold else ""
+            lines.append(f"  {label}: {' x '.join(map(str, g.shape))} = {g.size} points{held}")
             for a in g.axes:
                 lines.append(f"    {a.name:<8} [{a.unit}] {a.lo:g} .. {a.hi:g} ({len(a)})")
         for k, title in zip(KINDS, ("states", "inputs", "sensed outputs", "unmeasured outputs",
