@@ -276,7 +276,7 @@ def build(spec: BuildSpec, out_path, *, plant=None, executor: Executor | None = 
     q_x = per_channel(spec.q_x, names["x"], "[kalman] q_x", spec.path)
     q_h = per_channel(spec.q_h, names["h"], "[kalman] q_h", spec.path)
     h_sig = per_channel(spec.health_sigma, names["h"], "[tuners] health_sigma", spec.path)
-    targets = _targets(spec, names)
+    targets = _targets(spec.targets, names, spec.path)
     if getattr(plant, "time", "continuous") == "discrete" and abs(plant.dt - spec.dt) > 1e-12 * spec.dt:
         raise SpecError(f"{spec.path}: dt = {spec.dt} but the discrete plant's dt is {plant.dt}")
 
@@ -412,10 +412,11 @@ def point_label(grid, p) -> str:
     return ", ".join(f"{n}={float(v):g}" for n, v in zip(grid.names, p))
 
 
-def _targets(spec, names):
+def _targets(targets, names, where):
+    """Indices into [h; z] of the tuner-selection targets ("h" = every health parameter)."""
     nh = len(names["h"])
     out = []
-    for t in spec.targets:
+    for t in targets:
         if t == "h":
             out += list(range(nh))
         elif t in names["h"]:
@@ -423,7 +424,7 @@ def _targets(spec, names):
         elif t in names["z"]:
             out.append(nh + names["z"].index(t))
         else:
-            raise SpecError(f"{spec.path}: [tuners] target {t!r} is neither 'h' nor a health or "
+            raise SpecError(f"{where}: [tuners] target {t!r} is neither 'h' nor a health or "
                             f"unmeasured-output name")
     return list(dict.fromkeys(out))
 
@@ -589,11 +590,9 @@ def retune(db: GainDatabase, *, n_tuners: int, method: str = "subset", targets=(
             "Qh": np.diag(q_h ** 2),
             "R": db.kalman["R"].reshape(dg.size, db.n("y"), -1)[i],
             "z_scale": np.maximum(np.abs(z_trim[i]), 1e-9)} for i in range(dg.size)]
-    spec = BuildSpec.__new__(BuildSpec)
-    spec.targets, spec.path = list(targets), db.path
     fd = design_filter(pts, names, dg, db.dyn_status, n_tuners, method,
                        np.diag(per_channel(health_sigma, names["h"], "health_sigma", db.path) ** 2),
-                       _targets(spec, names), progress, log)
+                       _targets(targets, names, db.path), progress, log)
     D = dg.shape
     attrs = dict(db.attrs, tuner_method=method, tuner_metric=fd["metric"],
                  tuner_subset_metric=fd["subset_metric"], tuner_rms_error=fd["rms_error"],
