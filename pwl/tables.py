@@ -102,6 +102,18 @@ def paper_gain_1d(a, ratio):
     return 0.5 * a * (1.0 + s) / (0.5 * (1.0 + s) * q + ratio)
 
 
+@njit(cache=True, nogil=True, inline="always")
+def paper_corner(frac, c, ratio):
+    """Corner c (bit j set: upper node on axis j): its weight and its product-rule gain (A.7)."""
+    w = 1.0
+    g = 1.0
+    for j in range(frac.shape[0]):
+        a = frac[j] if (c >> j) & 1 else 1.0 - frac[j]
+        w *= a
+        g *= paper_gain_1d(a, ratio)
+    return w, g
+
+
 @njit(cache=True, nogil=True)
 def paper_gains(frac, ratio, out):
     """000 (A.7) generalised to n-D: the product over axes of the 1-D gains (A.4)/(A.6).
@@ -109,18 +121,9 @@ def paper_gains(frac, ratio, out):
     Corners are enumerated and dropped exactly as in ``corner_weights`` (same order, zero-weight
     corners skipped), so out[i] belongs to rows[i]. Returns the number of corners m.
     """
-    n = frac.shape[0]
     m = 0
-    for c in range(1 << n):
-        w = 1.0
-        g = 1.0
-        for j in range(n):
-            if (c >> j) & 1:
-                a = frac[j]
-            else:
-                a = 1.0 - frac[j]
-            w *= a
-            g *= paper_gain_1d(a, ratio)
+    for c in range(1 << frac.shape[0]):
+        w, g = paper_corner(frac, c, ratio)
         if w != 0.0:
             out[m] = g
             m += 1
@@ -143,18 +146,9 @@ def table_update(values, counts, wts, rows, m, error, law, ratio, frac=None):
     elif law == LAW_PAPER:
         if frac is None:
             raise ValueError("table_update: the paper law needs the axis fractions (frac)")
-        n = frac.shape[0]
         i = 0
-        for c in range(1 << n):
-            w = 1.0
-            g = 1.0
-            for j in range(n):
-                if (c >> j) & 1:
-                    a = frac[j]
-                else:
-                    a = 1.0 - frac[j]
-                w *= a
-                g *= paper_gain_1d(a, ratio)
+        for c in range(1 << frac.shape[0]):
+            w, g = paper_corner(frac, c, ratio)
             if w != 0.0:
                 r = rows[i]
                 values[r] += g * error
