@@ -167,7 +167,7 @@ class Parts:
             return {k: z[k] for k in z.files}
 
     def put(self, name, arrays: dict):
-        tmp = self._path(name) + ".tmp.npz"
+        tmp = os.path.join(self.dir, f".{name}.tmp.npz")  # hidden until complete
         np.savez(tmp, **arrays)
         os.replace(tmp, self._path(name))
 
