@@ -210,7 +210,7 @@ class Estimator:
         TH = one if TH is None else np.ascontiguousarray(TH, dtype=np.float64)
         DE = one if DE is None else np.ascontiguousarray(DE, dtype=np.float64)
         nx, nu, ny, nz, nq, nh = self.pm.dims
-        if out is None or any(out[o].shape != (n, len(self.names[o])) for o in self.names):
+        if out is None or any(o not in out or out[o].shape != (n, len(self.names[o])) for o in self.names):
             out = {o: np.empty((n, len(self.names[o]))) for o in self.names}
             out["flags"] = np.empty(n, dtype=np.int64)
         flags = out.pop("flags") if "flags" in out else np.empty(n, dtype=np.int64)
