@@ -272,6 +272,18 @@ def _chol_solve_right(S, B, L, out):
     return True
 
 
+@njit(nogil=True, inline="always")
+def _innovation(h, xm, u, p, Y, k, yh, e):
+    """e = Y[k] - h(xm, u); False when a measurement is NaN (no correction this step)."""
+    h(xm, u, p, yh)
+    ok = True
+    for i in range(e.shape[0]):
+        e[i] = Y[k, i] - yh[i]
+        if np.isnan(e[i]):
+            ok = False
+    return ok
+
+
 # ---- the filters ----------------------------------------------------------------------------------
 @njit(nogil=True)
 def sekf_loop(f, h, U, Y, x0, p, coords, uniform, lo, inv_h, nmax, bp, off, strides, labels,
@@ -300,12 +312,7 @@ def sekf_loop(f, h, U, Y, x0, p, coords, uniform, lo, inv_h, nmax, bp, off, stri
     for k in range(T):
         for i in range(nu):
             u[i] = U[k, i]
-        h(xm, u, p, yh)
-        ok = True
-        for i in range(m):
-            e[i] = Y[k, i] - yh[i]
-            if np.isnan(e[i]):
-                ok = False
+        ok = _innovation(h, xm, u, p, Y, k, yh, e)
         if ok:
             for j in range(d):
                 c = coords[j]
@@ -362,12 +369,7 @@ def ekf_loop(f, jac_f, h, jac_h, U, Y, x0, P0, Q, R, p, X_out, Pd_out):
     for k in range(T):
         for i in range(u.shape[0]):
             u[i] = U[k, i]
-        h(xm, u, p, yh)
-        ok = True
-        for i in range(m):
-            e[i] = Y[k, i] - yh[i]
-            if np.isnan(e[i]):
-                ok = False
+        ok = _innovation(h, xm, u, p, Y, k, yh, e)
         if ok:
             jac_h(xm, u, p, C)
             for i in range(n):                      # PCt = P C^T

@@ -65,6 +65,16 @@ def correction_factors(ex, theta, delta, fac):
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _add_product(dw, o, rows, v, out):
+    """out[:rows] += M v for the column-major matrix M stored at dw[o:] (rows x v.size): one
+    contiguous axpy per column."""
+    for j in range(v.shape[0]):
+        c = v[j]
+        for i in range(rows):
+            out[i] += dw[o + j * rows + i] * c
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _bias_learn(b_chan, b_vals, b_counts, b_wts, b_rows, bm, b_frac, b_law, b_ratio, b_learn, learn,
                 bias, res, fac, cls, cy, out_bias, k):
     """Bias tables after the residuals: record the bias (physical units), learn from res."""
@@ -263,14 +273,8 @@ def filter_loop(U, Y, S, TH, DE,
         # column by column, so every product is a few contiguous axpys (vectorised)
         for i in range(ny):
             yh[i] = tw[ty + i]
-        for j in range(na):
-            c = xm[j]
-            for i in range(ny):
-                yh[i] += dw[oC + j * ny + i] * c
-        for j in range(nu):
-            c = du[j]
-            for i in range(ny):
-                yh[i] += dw[oD + j * ny + i] * c
+        _add_product(dw, oC, ny, xm, yh)
+        _add_product(dw, oD, ny, du, yh)
         for c in range(nb):
             yh[b_chan[c]] += bias[c]
         update = True
@@ -295,21 +299,12 @@ def filter_loop(U, Y, S, TH, DE,
         for i in range(na):
             xi[i] = xm[i]
         if update:
-            for j in range(ny):
-                c = res[j]
-                for i in range(na):
-                    xi[i] += dw[oK + j * na + i] * c
+            _add_product(dw, oK, na, res, xi)
         # ---- outputs
         for i in range(nz):
             zh[i] = tw[tz + i]
-        for j in range(na):
-            c = xi[j]
-            for i in range(nz):
-                zh[i] += dw[oF + j * nz + i] * c
-        for j in range(nu):
-            c = du[j]
-            for i in range(nz):
-                zh[i] += dw[oG + j * nz + i] * c
+        _add_product(dw, oF, nz, xi, zh)
+        _add_product(dw, oG, nz, du, zh)
         for i in range(nz):
             out_z[k, i] = zh[i] * fac[cls[cz + i]]
         for j in range(nx):
