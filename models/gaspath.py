@@ -150,6 +150,27 @@ def turbine(PR, n, gam, C, o):
     return cap, eta
 
 
+@njit(cache=True, nogil=True, inline="always")
+def turbine_stage(W, Tt, Pt, PR, n_rel, h_flow, h_eff, Wcool, Tcool, kg, cpa, cpg, Tref, C, o):
+    """One turbine (map block o) at inlet flow W, Tt, Pt, pressure ratio PR, mechanical speed
+    over design speed n_rel, then its cooling air Wcool (at Tcool) mixed in at the exit.
+
+    Returns (map flow at the inlet conditions, exit Tt, exit Pt, power, mixed flow, mixed Tt,
+    efficiency, corrected speed ratio).
+    """
+    th = Tt / T_STD
+    nc = n_rel / math.sqrt(th)
+    cap, eta = turbine(PR, nc, C[GAMG], C, o)
+    cap *= 1.0 + h_flow
+    eta *= 1.0 + h_eff
+    Wmap = cap * (Pt / P_STD) / math.sqrt(th)
+    Tout = Tt * (1.0 - eta * (1.0 - PR ** (-kg)))
+    Pw = W * cpg * (Tt - Tout)
+    Wmix = W + Wcool
+    Tmix = Tref + (W * cpg * (Tout - Tref) + Wcool * cpa * (Tcool - Tref)) / (Wmix * cpg)
+    return Wmap, Tout, Pt / PR, Pw, Wmix, Tmix, eta, nc
+
+
 @njit(cache=True, nogil=True)
 def gaspath(v, mode, Nf, Nc, Wf, amb, h, C, r, s):
     """Evaluate the component matching residuals r and stations s at unknowns v. Returns ok."""
@@ -229,38 +250,16 @@ def gaspath(v, mode, Nf, Nc, Wf, amb, h, C, r, s):
     T4 = Tref + (W3 * cpa * (T3 - Tref) + C[ETA_B] * Wf * C[LHV]) / (W4 * cpg)
     if not (T4 > 0.0):
         return False
-    # HPT
-    th4 = T4 / T_STD
-    nht = Nc / math.sqrt(th4) / C[NHPT_D]
-    caph, etaht = turbine(pih, nht, C[GAMG], C, HPT)
-    caph *= 1.0 + h[7]
-    etaht *= 1.0 + h[6]
-    W4c = caph * (P4 / P_STD) / math.sqrt(th4)
-    T45 = T4 * (1.0 - etaht * (1.0 - pih ** (-kg)))
-    P45 = P4 / pih
-    Pwht = W4 * cpg * (T4 - T45)
+    # HPT, its cooling air mixed at the HPT exit (station 48)
+    W4c, T45, P45, Pwht, W48, T48, etaht, nht = turbine_stage(W4, T4, P4, pih, Nc / C[NHPT_D], h[7], h[6],
+                                                  C[F_HPT] * W25, T3, kg, cpa, cpg, Tref, C, HPT)
     if not (T45 > 0.0):
         return False
-    # HPT cooling air mixed at the HPT exit (station 48)
-    Wch_ = C[F_HPT] * W25
-    W48 = W4 + Wch_
-    T48 = Tref + (W4 * cpg * (T45 - Tref) + Wch_ * cpa * (T3 - Tref)) / (W48 * cpg)
-    # LPT
-    th48 = T48 / T_STD
-    nlt = Nf / math.sqrt(th48) / C[NLPT_D]
-    capl, etalt = turbine(pil, nlt, C[GAMG], C, LPT)
-    capl *= 1.0 + h[9]
-    etalt *= 1.0 + h[8]
-    W48c = capl * (P45 / P_STD) / math.sqrt(th48)
-    T5 = T48 * (1.0 - etalt * (1.0 - pil ** (-kg)))
-    P5 = P45 / pil
-    Pwlt = W48 * cpg * (T48 - T5)
+    # LPT, its cooling air mixed at the LPT exit (station 50)
+    W48c, T5, P5, Pwlt, W5, T50, etalt, nlt = turbine_stage(W48, T48, P45, pil, Nf / C[NLPT_D], h[9], h[8],
+                                                C[F_LPT] * W25, T3, kg, cpa, cpg, Tref, C, LPT)
     if not (T5 > 0.0):
         return False
-    # LPT cooling air mixed at the LPT exit (station 50)
-    Wcl_ = C[F_LPT] * W25
-    W5 = W48 + Wcl_
-    T50 = Tref + (W48 * cpg * (T5 - Tref) + Wcl_ * cpa * (T3 - Tref)) / (W5 * cpg)
     P7 = P5 * (1.0 - C[DP_CORE])
     Wnc, Fgc, ok = nozzle(W5, P7, T50, P0, C[A_CORE], C[GAMG], cpg, C[RG], C[CV_CORE], C[NOZ_EPS])
     if not ok:
