@@ -109,11 +109,19 @@ class Estimator:
     all on one grid over scheduling variables, values in corrected units. They learn from the
     filter's innovations during runs (unless locked) and keep what they learnt across
     :meth:`reset` and flights; :meth:`save_bias_tables` persists them.
+
+    ``online=True``: the full Kalman filter of the same piecewise-linear model instead of the
+    steady-state one: the error covariance is propagated every step with the interpolated A_a,
+    Q_a and the gain solved from it (an EKF whose Jacobians are the database's matrices; the
+    baseline the steady gains are measured against). Slower (see ``pwl zones --database``); the
+    current covariance is :attr:`covariance`.
     """
 
-    def __init__(self, db, q0=None, tune: bool = True, bias: dict | None = None):
+    def __init__(self, db, q0=None, tune: bool = True, bias: dict | None = None, online: bool = False):
         self.db = db if isinstance(db, GainDatabase) else GainDatabase.open(db)
-        self.pm = PackedModel.from_database(self.db, tune=tune)
+        self.pm = PackedModel.from_database(self.db, tune=tune, online=online)
+        na = self.db.n("x") + self.db.n("q")
+        self.cov = np.zeros(na * na if online else 0)
         db = self.db
         self.names = {"x_hat": db.names["x"], "q_hat": db.names["q"], "h_hat": db.names["h"],
                       "y_hat": db.names["y"], "residual": db.names["y"], "z_hat": db.names["z"]}
@@ -191,6 +199,15 @@ class Estimator:
         self._b_idx[:] = 0
 
     @property
+    def covariance(self) -> np.ndarray | None:
+        """Online mode: the error covariance P(k|k) after the last step, (na, na) over the
+        augmented state [dx; q] in corrected units (zeros before the first sample); else None."""
+        if not self.pm.online:
+            return None
+        na = int(np.sqrt(self.cov.size))
+        return self.cov.reshape(na, na).copy()
+
+    @property
     def input_channels(self) -> list[str]:
         """Log channels the filter reads: inputs, sensed outputs, schedule, theta, delta."""
         ch = list(self.db.names["u"]) + list(self.db.names["y"]) + list(self.pm.schedule_channels)
@@ -225,7 +242,7 @@ class Estimator:
                     self.state, self.t_idx, self.d_idx,
                     self._b_chan, self._b_vals, self._b_counts, bg.bp, bg.off, bg.strides, self._b_pidx,
                     self._b_idx, self._b_share, self._b_law, self._b_ratio, learn,
-                    out["x_hat"], out["q_hat"], out["y_hat"], out["residual"],
+                    pm.online, pm.p_tab, self.cov, out["x_hat"], out["q_hat"], out["y_hat"], out["residual"],
                     out["z_hat"], out.get("bias_hat", np.empty((n, 0))), flags)
         hat_health(out["q_hat"], db.tuner["V_pinv"], db.tuner["h_ref"], out["h_hat"])
         t = np.arange(n, dtype=np.float64) * db.dt if time is None else np.asarray(time, dtype=np.float64)

@@ -24,13 +24,18 @@ def node_weights(axes, point):
 class ReferenceFilter:
     """``bias``: optional channel -> (axes list of breakpoint arrays, axis names, values
     (grid shape, corrected units; updated in place), noise ratio) with the exact table gain
-    written out from its closed form (DESIGN.md section 3)."""
+    written out from its closed form (DESIGN.md section 3).
 
-    def __init__(self, db: GainDatabase, bias=None):
+    ``online``: the time-varying Kalman filter instead (the runtime's online mode): P from the
+    interpolated steady-state P at the first sample, then P = A P A^T + Q, K = P C^T (C P C^T +
+    R)^-1 by ``np.linalg.solve``, P = (I - K C) P every step."""
+
+    def __init__(self, db: GainDatabase, bias=None, online: bool = False):
         from scipy.interpolate import RegularGridInterpolator
 
         self.db = db
         self.bias = bias or {}
+        self.online = online
         ext = db.policy == "extrapolate"
         self.ext = ext
 
@@ -50,6 +55,8 @@ class ReferenceFilter:
             for k, v in (("A", Aa), ("B", Ba), ("C", Ca), ("D", d["D"][idx]), ("F", Fa),
                          ("G", d["G"][idx]), ("K", db.kalman["K"][idx])):
                 mats.setdefault(k, np.zeros(db.dyn_grid.shape + v.shape))[idx] = v
+        for k in ("Q", "R", "P"):
+            mats[k] = db.kalman[k]
         self.mats = {k: rgi(db.dyn_grid, v) for k, v in mats.items()}
         self.tax = [db.names["p"].index(n) for n in db.trim_grid.names]
         self.dax = [db.names["p"].index(n) for n in db.dyn_grid.names]
@@ -91,6 +98,9 @@ class ReferenceFilter:
             M = {n: f(pd)[0] for n, f in self.mats.items()}
             if xa is None:
                 xa = tr["x"].copy()
+                P = M["P"]
+            elif self.online:
+                P = M["A"] @ P @ M["A"].T + M["Q"]
             xi = np.concatenate([xa - tr["x"], q])
             du = U[k] / self.factor("u", th, de) - tr["u"]
             xm = M["A"] @ xi + M["B"] @ du
@@ -111,7 +121,13 @@ class ReferenceFilter:
                     c2 = w @ w
                     pbar = (1 + np.sqrt(1 + 4 * ratio / c2)) / 2
                     vals.reshape(-1)[:] += pbar * w / (pbar * c2 + ratio) * r[i]
-            xp = xm + M["K"] @ r
+            if self.online:
+                C = M["C"]
+                K = np.linalg.solve(C @ P @ C.T + M["R"], C @ P).T
+                P = (np.eye(len(P)) - K @ C) @ P
+            else:
+                K = M["K"]
+            xp = xm + K @ r
             z = tr["z"] + M["F"] @ xp + M["G"] @ du
             xa = tr["x"] + xp[:nx]
             q = xp[nx:]

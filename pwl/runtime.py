@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from .covariance import correct, propagate
 from .database import GainDatabase
 from .grid import locate
 from .interp import corner_weights, interp_rows
@@ -92,7 +93,7 @@ def filter_loop(U, Y, S, TH, DE,
                 dims, ex, cls, s_scale, s_corr,
                 state, t_idx, d_idx,
                 b_chan, b_vals, b_counts, b_bp, b_off, b_str, b_pidx, b_idx, b_share, b_law, b_ratio,
-                b_learn, out_x, out_q, out_yhat, out_res, out_z, out_bias, out_flags):
+                b_learn, online, p_tab, cov, out_x, out_q, out_yhat, out_res, out_z, out_bias, out_flags):
     """Run the filter over n samples; state and search hints are updated in place (chunkable).
 
     U (n, nu), Y (n, ny), S (n, ns) raw log channels; TH, DE (n,) theta and delta (ones when the
@@ -113,6 +114,14 @@ def filter_loop(U, Y, S, TH, DE,
     measurement update, every table with b_learn[c] learns from its channel's innovation with the
     steady-state table gain (law b_law, noise ratio b_ratio; pwl.tables). out_bias (n, nb) in
     physical units.
+
+    Online covariance (``online`` True; the full Kalman filter of the piecewise-linear model, an
+    EKF whose Jacobians are the interpolated matrices): dyn_tab blocks also hold Q_a and R
+    (row-major, after K); cov (na*na,) is the error covariance P (a posteriori between steps,
+    kept in place like ``state``), started from the interpolated steady-state P of p_tab (dyn nodes,
+    na*na) on the first valid sample. Each step P <- A_a P A_a^T + Q_a, then the gain and P(k|k)
+    from :func:`pwl.covariance.correct` replace the interpolated gain. Not online: p_tab, cov
+    are unused (may be empty).
     """
     nx, nu, ny, nz, nq, nh = dims[0], dims[1], dims[2], dims[3], dims[4], dims[5]
     na = nx + nq
@@ -126,6 +135,8 @@ def filter_loop(U, Y, S, TH, DE,
     oF = oD + ny * nu
     oG = oF + nz * na
     oK = oG + nz * nu
+    oQ = oK + na * ny        # online only: Q_a (na, na) and R (ny, ny), row-major
+    oR = oQ + na * na
     tx, tu, ty, tz = 0, nx, nx + nu, nx + nu + ny
     # workspace, allocated once per call
     tw = np.empty(trim_tab.shape[1])
@@ -160,6 +171,18 @@ def filter_loop(U, Y, S, TH, DE,
     cx, cu, cy, cz, cs = 0, nx, nx + nu, nx + nu + ny, nx + nu + ny + nz
     th_prev = -1.0
     de_prev = -1.0
+    no = na if online else 0    # online-covariance work arrays (empty otherwise)
+    mo = ny if online else 0
+    P = cov[:no * no].reshape((no, no))
+    Aa = np.eye(no)             # the tuner rows [0 I] stay as set here
+    Ca = np.empty((mo, no))
+    Qa = np.empty((no, no))
+    Ra = np.empty((mo, mo))
+    PCt = np.empty((no, mo))
+    Sw = np.empty((mo, mo))
+    Lw = np.empty((mo, mo))
+    Kw = np.empty((no, mo))
+    AP = np.empty((no, no))
     ox = 0
     oq = nx
     ou = nx + nq
@@ -249,10 +272,22 @@ def filter_loop(U, Y, S, TH, DE,
             for c in range(nb):
                 bias[c] = table_predict(b_vals[c], b_wts, b_rows, bm)
         # ---- start at trim on the first valid sample
-        if state[ost] == 0.0:
+        first = state[ost] == 0.0
+        if first:
             for j in range(nx):
                 state[ox + j] = tw[tx + j]
             state[ost] = 1.0
+        if online:  # covariance time update (the first step starts from the steady-state P)
+            if first:
+                interp_rows(p_tab, d_wts, d_rows, m, cov)
+            else:
+                for i in range(nx):
+                    for j in range(na):
+                        Aa[i, j] = dw[oA + i * na + j]
+                for i in range(na):
+                    for j in range(na):
+                        Qa[i, j] = dw[oQ + i * na + j]
+                propagate(Aa, P, Qa, AP)
         # ---- trim-shift adjustment and time update
         for j in range(nx):
             xi[j] = state[ox + j] - tw[tx + j]
@@ -296,6 +331,19 @@ def filter_loop(U, Y, S, TH, DE,
             _bias_learn(b_chan, b_vals, b_counts, b_wts, b_rows, bm, b_frac, b_law, b_ratio, b_learn,
                         update and b_out == 0, bias, res, fac, cls, cy, out_bias, k)
         # ---- measurement update
+        if online and update:  # the gain from P replaces the interpolated one
+            for i in range(ny):
+                for j in range(na):
+                    Ca[i, j] = dw[oC + j * ny + i]
+                for j in range(ny):
+                    Ra[i, j] = dw[oR + i * ny + j]
+            if correct(P, Ca, Ra, PCt, Sw, Lw, Kw):
+                for j in range(ny):
+                    for i in range(na):
+                        dw[oK + j * na + i] = Kw[i, j]
+            else:  # C P C^T + R not positive definite: prediction only
+                update = False
+                flags |= FLAG_NO_UPDATE
         for i in range(na):
             xi[i] = xm[i]
         if update:
@@ -368,7 +416,9 @@ class PackedModel:
 
     trim_tab: (trim nodes, nx+nu+ny+nz) = [x, u, y, z]; dyn_tab: (dyn nodes, block) =
     [A_a[:nx], B_a[:nx] row-major; C_a, D_a, F_a, G_a, K column-major] (the tuner rows of A_a
-    and B_a, [0 I] and [0], are not stored: the kernel applies them); the rest are plain arrays.
+    and B_a, [0 I] and [0], are not stored: the kernel applies them), and with ``online`` also
+    [Q_a, R] row-major, with p_tab (dyn nodes, na*na) the steady-state a-priori P; the rest are
+    plain arrays.
     """
 
     trim_tab: np.ndarray
@@ -383,11 +433,17 @@ class PackedModel:
     schedule_channels: list
     theta_channel: str | None
     delta_channel: str | None
+    online: bool = False
+    p_tab: np.ndarray | None = None
 
     @classmethod
-    def from_database(cls, db: GainDatabase, tune: bool = True) -> "PackedModel":
+    def from_database(cls, db: GainDatabase, tune: bool = True, online: bool = False) -> "PackedModel":
         """Pack ``db``; ``tune=False`` zeroes the tuner rows of K: the untuned model (states are
-        still filtered, the tuners stay at their initial value)."""
+        still filtered, the tuners stay at their initial value). ``online``: also pack Q_a, R and
+        the steady-state P for the online-covariance filter (needs ``tune``)."""
+        if online and not tune:
+            raise ValueError("the online-covariance filter estimates the tuners: tune=False is a "
+                             "steady-gain option only")
         tg, dg = db.trim_grid, db.dyn_grid
         trim_tab = np.ascontiguousarray(np.concatenate(
             [db.trim[k].reshape(tg.size, -1) for k in "xuyz"], axis=1))
@@ -399,8 +455,13 @@ class PackedModel:
         aug["A"], aug["B"] = aug["A"][..., :nx, :], aug["B"][..., :nx, :]
         for k in ("C", "D", "F", "G", "K"):  # column-major: the kernel's products are axpys
             aug[k] = np.swapaxes(aug[k], -1, -2)
+        parts = ("A", "B", "C", "D", "F", "G", "K") + (("Q", "R") if online else ())
+        aug["Q"], aug["R"] = db.kalman["Q"], db.kalman["R"]
         dyn_tab = np.ascontiguousarray(np.concatenate(
-            [aug[k].reshape(dg.size, -1) for k in ("A", "B", "C", "D", "F", "G", "K")], axis=1))
+            [aug[k].reshape(dg.size, -1) for k in parts], axis=1))
+        na = nx + db.n("q")
+        p_tab = np.ascontiguousarray(db.kalman["P"].reshape(dg.size, na * na) if online
+                                     else np.zeros((1, 0)))
         p = db.names["p"]
         t_pidx = np.array([p.index(n) for n in tg.names], dtype=np.int64)
         d_pidx = np.array([p.index(n) for n in dg.names], dtype=np.int64)
@@ -427,7 +488,7 @@ class PackedModel:
         return cls(trim_tab, dyn_tab, t_pidx, d_pidx, dims, np.array(pairs, dtype=np.float64), classes,
                    np.array([float(s) for _, _, s in db.schedule]), s_corr, chans,
                    db.correction.theta_channel if db.correction else None,
-                   db.correction.delta_channel if db.correction else None)
+                   db.correction.delta_channel if db.correction else None, online, p_tab)
 
     def state_size(self) -> int:
         nx, nu, ny, nz, nq, nh = self.dims

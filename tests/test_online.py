@@ -1,0 +1,83 @@
+"""The online-covariance (full Kalman filter) mode of the runtime: against the numpy reference,
+streaming vs batch, and convergence to scipy's DARE solution at a fixed operating point."""
+import numpy as np
+import pytest
+
+from conftest import make_database
+from linearize.kalman import steady_state_gain
+from pwl.estimator import Estimator
+from pwl.reference import ReferenceFilter
+from pwl.runtime import FLAG_NO_UPDATE
+from test_runtime import inputs
+
+
+def spd(rng, n, scale):
+    G = rng.normal(size=(n, n))
+    return scale * (G @ G.T / n + 0.5 * np.eye(n))
+
+
+def online_db(**kw):
+    """The synthetic database with different symmetric positive definite Q, R, P at every node."""
+    db = make_database(**kw)
+    db.schedule = [("p0", False, 1.0), ("y1", True, 2.0)]
+    rng = np.random.default_rng(7)
+    na, ny = db.n("x") + db.n("q"), db.n("y")
+    for idx in np.ndindex(*db.dyn_grid.shape):
+        db.kalman["Q"][idx] = spd(rng, na, 1e-4)
+        db.kalman["R"][idx] = spd(rng, ny, 1e-3)
+        db.kalman["P"][idx] = spd(rng, na, 1e-2)
+    return db
+
+
+@pytest.mark.parametrize("kw", [{}, {"correction": False}, {"trim_shape": (4, 3), "dyn_shape": (3, 2)}])
+def test_online_equals_numpy_reference(kw):
+    db = online_db(**kw)
+    U, Y, S, TH, DE = inputs(db, margin=0.05)
+    res = Estimator(db, online=True).run_arrays(U, Y, S, TH, DE)
+    ref = ReferenceFilter(db, online=True).run(U, Y, S, TH, DE)
+    for o, v in ref.items():
+        np.testing.assert_allclose(res.outputs[o], v, rtol=1e-9, atol=1e-9 * np.abs(v).max(initial=1.0),
+                                   err_msg=o)
+    # and the online gains are not the stored ones: the steady filter gives other estimates
+    steady = Estimator(db).run_arrays(U, Y, S, TH, DE)
+    assert np.abs(steady.outputs["q_hat"] - res.outputs["q_hat"]).max() > 1e-6
+
+
+def test_online_streaming_equals_batch_exactly():
+    db = online_db()
+    est = Estimator(db, online=True)
+    U, Y, S, TH, DE = inputs(db, n=60)
+    Y[10:15, 0] = np.nan
+    batch = est.run_arrays(U, Y, S, TH, DE)
+    P_batch = est.covariance
+    assert np.all(batch.flags[10:15] & FLAG_NO_UPDATE)
+    est.reset()
+    for k in range(60):
+        r = est.run_arrays(U[k:k + 1], Y[k:k + 1], S[k:k + 1], TH[k:k + 1], DE[k:k + 1])
+        for o in batch.outputs:
+            np.testing.assert_array_equal(r.outputs[o][0], batch.outputs[o][k])
+    np.testing.assert_array_equal(est.covariance, P_batch)
+
+
+def test_online_covariance_converges_to_dare_at_a_fixed_point():
+    """At a constant operating point the matrices are constant, so the Riccati recursion of the
+    online filter must reach scipy's DARE solution (a posteriori form P - K C P) at the matrices
+    RegularGridInterpolator gives there; its gain then equals the steady-state gain."""
+    db = online_db(correction=False)
+    n = 3000
+    p = np.array([3.7, 81.0])                       # inside the grid, off every node
+    S = np.tile([p[0], p[1] / 2.0], (n, 1))          # schedule channel 2 has scale 2
+    U = np.ones((n, db.n("u")))
+    Y = 1.0 + 0.01 * np.random.default_rng(3).normal(size=(n, db.n("y")))
+    est = Estimator(db, online=True)
+    est.run_arrays(U, Y, S)
+    ref = ReferenceFilter(db)
+    A, C, Q, R = (ref.mats[k](p)[0] for k in ("A", "C", "Q", "R"))
+    K, P = steady_state_gain(A, C, Q, R)
+    P_post = P - K @ C @ P
+    np.testing.assert_allclose(est.covariance, P_post, rtol=1e-8, atol=1e-10 * np.abs(P_post).max())
+
+
+def test_online_needs_tuning():
+    with pytest.raises(ValueError, match="tune=False"):
+        Estimator(online_db(), tune=False, online=True)
