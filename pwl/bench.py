@@ -94,7 +94,8 @@ def demo_paths():
 def bench_run(db_path=None, log_path=None, n_ref: int = 2000) -> dict:
     """Steps per second of the numba runtime on a whole log versus the plain numpy +
     RegularGridInterpolator reference (:mod:`pwl.reference`) on its first ``n_ref`` samples,
-    in the same run; also their largest difference on those samples."""
+    in the same run; also their largest difference on those samples, and the speed with a
+    learning bias table and of the online-covariance (full Kalman filter) mode."""
     from .estimator import Estimator
     from .logs import read_log
     from .reference import ReferenceFilter
@@ -125,6 +126,13 @@ def bench_run(db_path=None, log_path=None, n_ref: int = 2000) -> dict:
         est.run_arrays(U, Y, S, TH, DE, out=dict(bufs_b))
     t_bias = _best_of(go_bias, repeat=5)
     est.new_bias_tables([])
+    onl = Estimator(est.db, online=True)
+    onl.run_arrays(U, Y, S, TH, DE, out=dict(bufs))
+
+    def go_online():
+        onl.reset()
+        onl.run_arrays(U, Y, S, TH, DE, out=dict(bufs))
+    t_onl = _best_of(go_online, repeat=3)
     ref = ReferenceFilter(est.db)
     m = min(n_ref, n)
     t0 = time.perf_counter()
@@ -140,5 +148,6 @@ def bench_run(db_path=None, log_path=None, n_ref: int = 2000) -> dict:
     return {"database": est.db.path, "log": log.path, "samples": n,
             "pwl_steps_per_s": n / t, "x_real_time": n / t * dt,
             "pwl_steps_per_s_with_bias_table": n / t_bias,
+            "online_covariance_steps_per_s": n / t_onl,
             "reference_steps_per_s": m / t_ref, "ratio": (n / t) / (m / t_ref),
             "max_rel_diff_vs_reference": diff}

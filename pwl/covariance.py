@@ -2,14 +2,16 @@
 
 The steady-state filter of the runtime uses gains solved offline (:mod:`linearize.kalman`, the DARE).
 A full (extended) Kalman filter instead carries the error covariance P and solves the gain every
-step from the current Jacobians; these kernels are that step, shared by the EKF of
-:mod:`pwl.ekf` and the online-covariance mode of :mod:`pwl.runtime`::
+step from the current Jacobians; these kernels are that step, used by the online-covariance mode
+of :mod:`pwl.runtime` (and, written out, by the EKF of :mod:`pwl.ekf`)::
 
     correct:    S = C P C^T + R,  K = P C^T S^-1,  P <- P - K (P C^T)^T      (measurement update)
     propagate:  P <- A P A^T + Q                                             (time update)
 
 P is the a-priori covariance before ``correct`` and the a-posteriori one after it; ``K`` is the
 update ("filter") gain of :mod:`linearize.kalman`, x(k|k) = x(k|k-1) + K (y - y_hat).
+
+:func:`pwl.ekf.ekf_loop` writes ``correct`` and ``propagate`` out in its loop (see there why).
 """
 from __future__ import annotations
 

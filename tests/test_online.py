@@ -78,6 +78,29 @@ def test_online_covariance_converges_to_dare_at_a_fixed_point():
     np.testing.assert_allclose(est.covariance, P_post, rtol=1e-8, atol=1e-10 * np.abs(P_post).max())
 
 
+@pytest.mark.parametrize("m", [1, 3])
+def test_covariance_kernels_against_numpy(m):
+    from pwl.covariance import correct, propagate
+
+    rng = np.random.default_rng(m)
+    n = 5
+    P, Q, R = spd(rng, n, 1.0), spd(rng, n, 0.1), spd(rng, m, 0.5)
+    A, C = rng.normal(size=(n, n)), rng.normal(size=(m, n))
+    K_np = P @ C.T @ np.linalg.inv(C @ P @ C.T + R)
+    Pp_np = (np.eye(n) - K_np @ C) @ P
+    Pk, K = P.copy(), np.empty((n, m))
+    assert correct(Pk, C, R, np.empty((n, m)), np.empty((m, m)), np.empty((m, m)), K)
+    np.testing.assert_allclose(K, K_np, rtol=1e-12, atol=1e-13)
+    np.testing.assert_allclose(Pk, Pp_np, rtol=1e-11, atol=1e-13)
+    propagate(A, Pk, Q, np.empty((n, n)))
+    np.testing.assert_allclose(Pk, A @ Pp_np @ A.T + Q, rtol=1e-11, atol=1e-12)
+    # not positive definite: refused, nothing changed
+    Pk2 = Pk.copy()
+    assert not correct(Pk2, C, -10.0 * np.eye(m) - C @ Pk @ C.T, np.empty((n, m)), np.empty((m, m)),
+                       np.empty((m, m)), K)
+    np.testing.assert_array_equal(Pk2, Pk)
+
+
 def test_online_needs_tuning():
     with pytest.raises(ValueError, match="tune=False"):
         Estimator(online_db(), tune=False, online=True)

@@ -391,8 +391,10 @@ def test_compare_database_zone_vs_interpolated(tmp_path):
     res = compare_database(tmp_path / "db.h5", [tmp_path / "log.h5"], k=2, settle=0.0,
                            out=tmp_path / "zoned.h5")
     assert [row[1] for row in res["rows"]] == db.names["z"]
-    for _, _, si, sz, mi, mz in res["rows"]:
-        assert si == pytest.approx(0.0, abs=1e-9) and sz > 1e-6 and np.isfinite(sz)
+    for _, _, e in res["rows"]:
+        assert e["interp"][0] == pytest.approx(0.0, abs=1e-9) and e["zones"][0] > 1e-6
+        assert e["online"][0] > 1e-6 and np.isfinite(e["zones"][0]) and np.isfinite(e["online"][0])
+    assert set(res["speed"]["steps_per_s"]) == {"interp", "zones", "online"}
     assert res["sizes"]["record_bytes"] == ZoneTable.from_record(res["record"]).nbytes()
     assert GainDatabase.open(tmp_path / "zoned.h5").zones is not None
     assert "zones RMS" in res["text"] and len(res["health"]) == 1

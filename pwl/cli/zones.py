@@ -403,13 +403,37 @@ def _run_database(args) -> int:
     return 0
 
 
+def filter_speed(ests: dict, log, repeat: int = 5) -> dict:
+    """Steps per second of each estimator on ``log`` (whole log, output buffers reused), minimum
+    of ``repeat`` alternating runs in this process; "ratio" = zones / online when both exist."""
+    args = {f: e._split(log) for f, e in ests.items()}
+    bufs = {}
+    for f, e in ests.items():
+        r = e.run_arrays(*args[f])
+        bufs[f] = dict(r.outputs, flags=r.flags)
+    best = dict.fromkeys(ests, np.inf)
+    for _ in range(repeat):
+        for f, e in ests.items():
+            e.reset()
+            t0 = time.perf_counter()
+            e.run_arrays(*args[f], out=dict(bufs[f]))
+            best[f] = min(best[f], time.perf_counter() - t0)
+    n = len(log.time)
+    st = {f: n / t for f, t in best.items()}
+    ratio = st["zones"] / st["online"] if "zones" in st and "online" in st else None
+    return {"log": log.path, "samples": n, "repeat": repeat, "steps_per_s": st, "ratio": ratio}
+
+
 def compare_database(db_path, logs, k: int = 3, seed: int = 0, settle: float = 120.0, out=None) -> dict:
     """Cluster a database's gains into k zones (:func:`linearize.zones.database_zones`) and run
     the estimator with interpolated gains and with zone gains over ``logs`` that carry truth.
 
-    Returns {"text": printable report, "rows": [(log, channel, rms_interp, rms_zone, mean_interp,
-    mean_zone)] in % of truth, "health": [(log, names, interp, zone, truth)] median estimates,
-    "sizes": {...} bytes}."""
+    Three estimators: "interp" (the database's steady gains, interpolated), "zones" (the zone
+    centroid gains) and "online" (the full Kalman filter of the same model, :class:`Estimator`
+    ``online=True``: the EKF baseline). Returns {"text": printable report, "rows": [(log, channel,
+    {estimator: (RMS, mean)})] in % of truth, "health": [(log, names, {estimator: median
+    estimates}, truth)], "sizes": {...} bytes, "record", "speed": :func:`filter_speed` on the
+    first log}."""
     import os
     import tempfile
 
@@ -447,35 +471,44 @@ def compare_database(db_path, logs, k: int = 3, seed: int = 0, settle: float = 1
                  "(the zoned copy keeps a K per node for the runtime, holding its zone's centroid)")
     if out:
         lines.append(f"  zone-gain copy written to {out}")
-    rows, health = [], []
+    rows, health, speed = [], [], {}
     if logs:
-        ei, ez = Estimator(db), Estimator(zoned)
+        ests = {"interp": Estimator(db), "zones": Estimator(zoned), "online": Estimator(db, online=True)}
         for path in logs:
             log = read_log(path)
-            ri, rz = ei.run(log), ez.run(log)
+            res = {f: e.run(log) for f, e in ests.items()}
             name = os.path.splitext(os.path.basename(os.fspath(path)))[0]
             settled = log.time >= log.time[0] + settle
             for ch in db.names["z"]:
                 if ch in log.truth:
-                    (si, mi), (sz, mz) = (errors(r.channel("z_hat", ch), log.truth[ch], settled)
-                                          for r in (ri, rz))
-                    rows.append((name, ch, si, sz, mi, mz))
+                    rows.append((name, ch, {f: errors(r.channel("z_hat", ch), log.truth[ch], settled)
+                                            for f, r in res.items()}))
             names = db.names["h"]
             if names and any(h in log.truth for h in names):
-                hi = snapshot(ri.time, ri.h_hat, ri.flags, names, path, settle).values
-                hz = snapshot(rz.time, rz.h_hat, rz.flags, names, path, settle).values
                 tr = np.array([np.mean(log.truth[h]) if h in log.truth else np.nan for h in names])
-                health.append((name, list(names), hi, hz, tr))
-        lines.append(f"\nestimation error, % of truth after the first {settle:g} s (RMS / mean):")
-        lines.append(f"{'log':<20} {'output':<8} {'interp RMS':>11} {'zones RMS':>10} {'interp mean':>12} "
-                     f"{'zones mean':>11}")
-        for name, ch, si, sz, mi, mz in rows:
-            lines.append(f"{name:<20} {ch:<8} {si:>11.3f} {sz:>10.3f} {mi:>12.3f} {mz:>11.3f}")
-        for name, names, hi, hz, tr in health:
+                health.append((name, list(names), {f: snapshot(r.time, r.h_hat, r.flags, names, path,
+                                                               settle).values for f, r in res.items()}, tr))
+        speed = filter_speed(ests, read_log(logs[0]))
+        lines.append(f"\nestimation error, % of truth after the first {settle:g} s (RMS / mean); "
+                     "interp: interpolated steady gains, zones: zone gains, online: full Kalman filter "
+                     "(covariance propagated every step)")
+        lines.append(f"{'log':<20} {'output':<8} " + " ".join(f"{f + ' RMS':>11}" for f in ests) + " "
+                     + " ".join(f"{f + ' mean':>12}" for f in ests))
+        for name, ch, e in rows:
+            lines.append(f"{name:<20} {ch:<8} " + " ".join(f"{e[f][0]:>11.3f}" for f in ests) + " "
+                         + " ".join(f"{e[f][1]:>12.3f}" for f in ests))
+        for name, names, h, tr in health:
             lines.append(f"health, % (median estimate), {name}:")
             lines.append(f"  {'':<8} " + " ".join(f"{n:>10}" for n in names))
-            for lab, v in (("interp", hi), ("zones", hz), ("truth", tr)):
+            for lab, v in list(h.items()) + [("truth", tr)]:
                 lines.append(f"  {lab:<8} " + " ".join(f"{100 * x:>10.3f}" for x in v))
-    else:
-        lines.append("  (no logs with truth given: --logs to compare estimation errors)")
-    return {"text": "\n".join(lines), "rows": rows, "health": health, "sizes": sizes, "record": record}
+        st = speed["steps_per_s"]
+        lines.append(f"\nspeed on {speed['log']} ({speed['samples']} samples, min of {speed['repeat']} "
+                     "alternating runs, this process):")
+        for f, v in st.items():
+            lines.append(f"  {f:<8} {1e9 / v:8.0f} ns per step  {v:>12,.0f} steps/s   "
+                         f"{v / st['online']:5.2f}x the online filter's speed")
+        lines.append(f"  zone gains (SEKF) are {speed['ratio']:.1f}x faster per step than the full "
+                     "Kalman filter (EKF) of the same model")
+    return {"text": "\n".join(lines), "rows": rows, "health": health, "sizes": sizes, "record": record,
+            "speed": speed}
