@@ -333,9 +333,9 @@ def load_bias_tables(path) -> dict:
 _worker_est = None
 
 
-def _init_worker(db_path):
+def _init_worker(db_path, online=False):
     global _worker_est
-    _worker_est = Estimator(db_path)
+    _worker_est = Estimator(db_path, online=online)
 
 
 def _run_one(log_path, out_path):
@@ -351,8 +351,9 @@ def output_path(log_path, outdir, csv: bool = False) -> str:
 
 
 def run_many(db_path, log_paths, outdir, workers: int | None = None, csv: bool = False,
-             progress=None):
-    """Estimate every log into ``outdir`` (one results file per log), in parallel processes.
+             progress=None, online: bool = False):
+    """Estimate every log into ``outdir`` (one results file per log), in parallel processes
+    (``online``: the full Kalman filter, :class:`Estimator` ``online=True``).
 
     Returns a list of (log, output, counts or None, error message or None) in input order; a log
     that fails is reported and the others still complete. ``progress(done, total, item)`` is
@@ -368,13 +369,13 @@ def run_many(db_path, log_paths, outdir, workers: int | None = None, csv: bool =
     workers = max(1, min(len(logs), workers or os.cpu_count() or 1))
     results = []
     if workers == 1:
-        _init_worker(db_path)
+        _init_worker(db_path, online)
         for i, (lg, out) in enumerate(zip(logs, outs)):
             results.append(_run_one(lg, out))
             if progress:
                 progress(i + 1, len(logs), results[-1])
         return results
-    with ProcessPoolExecutor(workers, initializer=_init_worker, initargs=(os.fspath(db_path),)) as ex:
+    with ProcessPoolExecutor(workers, initializer=_init_worker, initargs=(os.fspath(db_path), online)) as ex:
         futs = [ex.submit(_run_one, lg, out) for lg, out in zip(logs, outs)]
         for i, fut in enumerate(futs):
             results.append(fut.result())

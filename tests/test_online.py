@@ -104,3 +104,23 @@ def test_covariance_kernels_against_numpy(m):
 def test_online_needs_tuning():
     with pytest.raises(ValueError, match="tune=False"):
         Estimator(online_db(), tune=False, online=True)
+
+
+def test_pwl_run_online_writes_the_online_estimates(tmp_path):
+    """``pwl run --online`` (chunked file processing) equals the in-memory online run."""
+    import h5py
+
+    from pwl.cli import main
+    from pwl.logs import write_log
+    from test_runtime import full_log
+
+    db = online_db()
+    db.save(tmp_path / "db.h5")
+    write_log(tmp_path / "f0.h5", full_log(db, n=300))
+    assert main(["run", str(tmp_path / "db.h5"), str(tmp_path / "f0.h5"), "-o", str(tmp_path / "out"),
+                 "-j", "1", "--online"]) == 0
+    want = Estimator(tmp_path / "db.h5", online=True).run(tmp_path / "f0.h5")
+    steady = Estimator(tmp_path / "db.h5").run(tmp_path / "f0.h5")
+    with h5py.File(tmp_path / "out" / "f0.estimates.h5") as f:
+        np.testing.assert_array_equal(f["q_hat"][()], want.q_hat)
+        assert np.abs(f["q_hat"][()] - steady.q_hat).max() > 1e-6

@@ -13,6 +13,9 @@ def add_arguments(p):
     p.add_argument("-o", "--outdir", required=True, help="folder for the results")
     p.add_argument("--csv", action="store_true", help="write CSV results instead of HDF5")
     p.add_argument("-j", "--workers", type=int, default=None, help="parallel processes (default: cores)")
+    p.add_argument("--online", action="store_true",
+                   help="full Kalman filter: propagate the covariance and solve the gain every step "
+                        "(about 7x slower than the database's steady gains; for comparison)")
 
 
 def expand(paths):
@@ -60,7 +63,7 @@ def run(args) -> int:
             f"{counts['trim_outside']} outside the grid -> {out}")
         print(f"[{done}/{total}] {log}: {status}", file=sys.stderr, flush=True)
 
-    results = run_many(args.database, logs, args.outdir, args.workers, args.csv, progress)
+    results = run_many(args.database, logs, args.outdir, args.workers, args.csv, progress, online=args.online)
     failed = [r for r in results if r[3]]
     n = sum(r[2]["samples"] for r in results if r[2])
     dt = time.perf_counter() - t0
