@@ -31,6 +31,7 @@ from pwl.grid import Axis, Grid
 from pwl.runtime import augment
 
 from . import plant as proto
+from . import threads
 from .jacobian import correct, discretize, jacobians
 from .kalman import GainError, steady_state_gain
 from .spec import BuildSpec, SpecError, per_channel
@@ -224,9 +225,9 @@ def _key(spec: BuildSpec, ref) -> str:
 def _run(executor, fn, tasks, progress: Progress, on_result):
     """Submit ``tasks`` (name, args) and hand each (name, result or exception) to ``on_result``."""
     if isinstance(executor, SerialExecutor):  # one at a time, each result kept before the next
-        pairs = ((name, executor.submit(fn, *args)) for name, args in tasks)
+        pairs = ((name, executor.submit(threads.call, fn, *args)) for name, args in tasks)
     else:
-        futs = {executor.submit(fn, *args): name for name, args in tasks}
+        futs = {executor.submit(threads.call, fn, *args): name for name, args in tasks}
         pairs = ((futs[f], f) for f in as_completed(futs))
     abort = None
     for name, fut in pairs:
@@ -246,6 +247,7 @@ def _run(executor, fn, tasks, progress: Progress, on_result):
 
 
 # ---- the build ----------------------------------------------------------------------------------
+@threads.one_blas_thread
 def build(spec: BuildSpec, out_path, *, plant=None, executor: Executor | None = None,
           workers: int | None = None, progress: bool = True, keep_parts: bool = False,
           log=print) -> GainDatabase:
@@ -565,6 +567,7 @@ def _dynamics(spec, ref, names, h0, trim, hold, executor, parts, progress):
     return out, {k: v for k, v in errors.items()}
 
 
+@threads.one_blas_thread
 def retune(db: GainDatabase, *, n_tuners: int, method: str = "subset", targets=("h",),
            q_x=None, q_h=1e-4, health_sigma=0.02, progress: bool = False, log=print) -> GainDatabase:
     """A copy of ``db`` with new tuners and gains, from its stored matrices and covariances:

@@ -30,6 +30,7 @@ from pwl.ekf import ZoneTable
 from pwl.grid import Axis, Grid
 
 from .kalman import GainError, steady_state_gain
+from .threads import one_blas_thread
 
 
 # ---- plant side ---------------------------------------------------------------------------------
@@ -91,6 +92,7 @@ class Samples:
     model: str = ""
 
 
+@one_blas_thread
 def sample_gains(plant, N: int = 10_000, seed: int = 0, lo=None, hi=None, Q=None, R=None,
                  keep_failures: int = 10) -> Samples:
     """N uniform random operating points (u, x) in the box [lo, hi] and the steady gain at each
