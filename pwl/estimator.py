@@ -32,7 +32,9 @@ class Result:
     """Estimates for one log: each output (n, k) in physical units, flags (n,) int64.
 
     Outputs: x_hat, q_hat, h_hat, y_hat (a priori, bias included), residual, z_hat, and
-    ``bias_hat`` (the bias tables' values at the operating point) when the estimator has them."""
+    ``bias_hat`` (the bias tables' values at the operating point) when the estimator has them,
+    ``h_std`` (standard deviation of every health estimate, from the filter's covariance) when it
+    is an online-covariance estimator."""
 
     time: np.ndarray
     outputs: dict[str, np.ndarray]
@@ -114,10 +116,13 @@ class Estimator:
     steady-state one: the error covariance is propagated every step with the interpolated A_a,
     Q_a and the gain solved from it (an EKF whose Jacobians are the database's matrices; the
     baseline the steady gains are measured against). Slower (see ``pwl zones --database``); the
-    current covariance is :attr:`covariance`.
+    current covariance is :attr:`covariance`, and results carry ``h_std``, the standard deviation
+    of every health estimate (``health_std=False``: not computed, about 0.2 microseconds per step
+    less; docs/zones.md says how to read it).
     """
 
-    def __init__(self, db, q0=None, tune: bool = True, bias: dict | None = None, online: bool = False):
+    def __init__(self, db, q0=None, tune: bool = True, bias: dict | None = None, online: bool = False,
+                 health_std: bool = True):
         self.db = db if isinstance(db, GainDatabase) else GainDatabase.open(db)
         self.pm = PackedModel.from_database(self.db, tune=tune, online=online)
         na = self.db.n("x") + self.db.n("q")
@@ -125,6 +130,8 @@ class Estimator:
         db = self.db
         self.names = {"x_hat": db.names["x"], "q_hat": db.names["q"], "h_hat": db.names["h"],
                       "y_hat": db.names["y"], "residual": db.names["y"], "z_hat": db.names["z"]}
+        if online and health_std:
+            self.names["h_std"] = db.names["h"]
         units = {n: u for k in "xuyz" for n, u in zip(db.names[k], db.units[k])}
         for (c, corr, scale), pn, pu in zip(db.schedule, db.names["p"], db.units["p"]):
             if not corr and scale == 1.0:
@@ -242,8 +249,9 @@ class Estimator:
                     self.state, self.t_idx, self.d_idx,
                     self._b_chan, self._b_vals, self._b_counts, bg.bp, bg.off, bg.strides, self._b_pidx,
                     self._b_idx, self._b_share, self._b_law, self._b_ratio, learn,
-                    pm.online, pm.p_tab, self.cov, out["x_hat"], out["q_hat"], out["y_hat"], out["residual"],
-                    out["z_hat"], out.get("bias_hat", np.empty((n, 0))), flags)
+                    pm.online, pm.p_tab, self.cov, db.tuner["V_pinv"],
+                    out["x_hat"], out["q_hat"], out["y_hat"], out["residual"], out["z_hat"],
+                    out.get("bias_hat", np.empty((n, 0))), out.get("h_std", np.empty((n, 0))), flags)
         hat_health(out["q_hat"], db.tuner["V_pinv"], db.tuner["h_ref"], out["h_hat"])
         t = np.arange(n, dtype=np.float64) * db.dt if time is None else np.asarray(time, dtype=np.float64)
         return Result(t, out, flags, self.names)

@@ -78,7 +78,8 @@ class ReferenceFilter:
         nx, nq = db.n("x"), db.n("q")
         corr = {n: e for k in "xuyz" for n, e in zip(db.names[k], (
             db.correction.exponents[k] if db.correction else np.zeros((db.n(k), 2))))}
-        out = {o: [] for o in ("x_hat", "q_hat", "h_hat", "y_hat", "residual", "z_hat")}
+        out = {o: [] for o in ("x_hat", "q_hat", "h_hat", "y_hat", "residual", "z_hat")
+               + (("h_std",) if self.online else ())}
         xa = None
         q = np.zeros(nq)
         for k in range(U.shape[0]):
@@ -137,4 +138,7 @@ class ReferenceFilter:
             out["y_hat"].append(yh * fy)
             out["residual"].append(Y[k] - yh * fy)
             out["z_hat"].append(z * self.factor("z", th, de))
+            if self.online:
+                Vp = db.tuner["V_pinv"]
+                out["h_std"].append(np.sqrt(np.diag(Vp @ P[nx:, nx:] @ Vp.T)))
         return {k: np.array(v) for k, v in out.items()}

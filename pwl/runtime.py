@@ -93,7 +93,8 @@ def filter_loop(U, Y, S, TH, DE,
                 dims, ex, cls, s_scale, s_corr,
                 state, t_idx, d_idx,
                 b_chan, b_vals, b_counts, b_bp, b_off, b_str, b_pidx, b_idx, b_share, b_law, b_ratio,
-                b_learn, online, p_tab, cov, out_x, out_q, out_yhat, out_res, out_z, out_bias, out_flags):
+                b_learn, online, p_tab, cov, V_pinv,
+                out_x, out_q, out_yhat, out_res, out_z, out_bias, out_hstd, out_flags):
     """Run the filter over n samples; state and search hints are updated in place (chunkable).
 
     U (n, nu), Y (n, ny), S (n, ns) raw log channels; TH, DE (n,) theta and delta (ones when the
@@ -120,8 +121,10 @@ def filter_loop(U, Y, S, TH, DE,
     (row-major, after K); cov (na*na,) is the error covariance P (a posteriori between steps,
     kept in place like ``state``), started from the interpolated steady-state P of p_tab (dyn nodes,
     na*na) on the first valid sample. Each step P <- A_a P A_a^T + Q_a, then the gain and P(k|k)
-    from :func:`pwl.covariance.correct` replace the interpolated gain. Not online: p_tab, cov
-    are unused (may be empty).
+    from :func:`pwl.covariance.correct` replace the interpolated gain; out_hstd (n, nh) gets the
+    standard deviation of every health estimate, sqrt(diag(V_pinv P_qq V_pinv^T)) with P_qq the
+    tuner block of P(k|k) (V_pinv (nh, nq)), unless it has no columns. Not online: p_tab, cov,
+    V_pinv and out_hstd are unused (may be empty).
     """
     nx, nu, ny, nz, nq, nh = dims[0], dims[1], dims[2], dims[3], dims[4], dims[5]
     na = nx + nq
@@ -231,6 +234,8 @@ def filter_loop(U, Y, S, TH, DE,
                 out_z[k, j] = np.nan
             for j in range(nb):
                 out_bias[k, j] = np.nan
+            for j in range(out_hstd.shape[1]):
+                out_hstd[k, j] = np.nan
             continue
         if state[oth] != th_prev or state[ode] != de_prev:
             th_prev = state[oth]
@@ -362,6 +367,15 @@ def filter_loop(U, Y, S, TH, DE,
         for j in range(nq):
             state[oq + j] = xi[nx + j]
             out_q[k, j] = xi[nx + j]
+        if online and out_hstd.shape[1] > 0:  # health standard deviations from P(k|k)
+            for i in range(nh):
+                v = 0.0
+                for j in range(nq):
+                    a = 0.0
+                    for c in range(nq):
+                        a += P[nx + j, nx + c] * V_pinv[i, c]
+                    v += V_pinv[i, j] * a
+                out_hstd[k, i] = math.sqrt(max(v, 0.0))
         out_flags[k] = flags
     return n
 

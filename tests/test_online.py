@@ -38,6 +38,10 @@ def test_online_equals_numpy_reference(kw):
     for o, v in ref.items():
         np.testing.assert_allclose(res.outputs[o], v, rtol=1e-9, atol=1e-9 * np.abs(v).max(initial=1.0),
                                    err_msg=o)
+    # without the health standard deviations: the same estimates, no h_std output
+    lean = Estimator(db, online=True, health_std=False).run_arrays(U, Y, S, TH, DE)
+    assert "h_std" not in lean.outputs
+    np.testing.assert_array_equal(lean.q_hat, res.q_hat)
     # and the online gains are not the stored ones: the steady filter gives other estimates
     steady = Estimator(db).run_arrays(U, Y, S, TH, DE)
     assert np.abs(steady.outputs["q_hat"] - res.outputs["q_hat"]).max() > 1e-6

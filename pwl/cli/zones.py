@@ -474,7 +474,7 @@ def compare_database(db_path, logs, k: int = 3, seed: int = 0, settle: float = 1
         lines.append(f"  zone-gain copy written to {out}")
     rows, health, speed = [], [], {}
     if logs:
-        ests = {"interp": Estimator(db), "zones": Estimator(zoned), "online": Estimator(db, online=True)}
+        ests = {"interp": Estimator(db), "zones": Estimator(zoned), "online": Estimator(db, online=True, health_std=False)}
         for path in logs:
             log = read_log(path)
             res = {f: e.run(log) for f, e in ests.items()}
