@@ -119,12 +119,20 @@ class Estimator:
     current covariance is :attr:`covariance`, and results carry ``h_std``, the standard deviation
     of every health estimate (``health_std=False``: not computed, about 0.2 microseconds per step
     less; docs/zones.md says how to read it).
+
+    ``zones=True``: the gain is picked from the database's k-means zones (``/zones``, built by
+    :func:`linearize.zones.database_zones`): the centroid gain of the zone of the nearest
+    dynamics node, instead of the interpolated K.
     """
 
     def __init__(self, db, q0=None, tune: bool = True, bias: dict | None = None, online: bool = False,
-                 health_std: bool = True):
+                 health_std: bool = True, zones: bool = False):
         self.db = db if isinstance(db, GainDatabase) else GainDatabase.open(db)
-        self.pm = PackedModel.from_database(self.db, tune=tune, online=online)
+        zt = None
+        if zones:
+            from .ekf import ZoneTable
+            zt = ZoneTable.from_record(self.db.zones, where=f"{self.db.path}:/zones")
+        self.pm = PackedModel.from_database(self.db, tune=tune, online=online, zones=zt)
         na = self.db.n("x") + self.db.n("q")
         self.cov = np.zeros(na * na if online else 0)
         db = self.db
@@ -249,7 +257,7 @@ class Estimator:
                     self.state, self.t_idx, self.d_idx,
                     self._b_chan, self._b_vals, self._b_counts, bg.bp, bg.off, bg.strides, self._b_pidx,
                     self._b_idx, self._b_share, self._b_law, self._b_ratio, learn,
-                    pm.online, pm.p_tab, self.cov, db.tuner["V_pinv"],
+                    pm.online, pm.p_tab, self.cov, db.tuner["V_pinv"], pm.z_gains, pm.z_labels,
                     out["x_hat"], out["q_hat"], out["y_hat"], out["residual"], out["z_hat"],
                     out.get("bias_hat", np.empty((n, 0))), out.get("h_std", np.empty((n, 0))), flags)
         hat_health(out["q_hat"], db.tuner["V_pinv"], db.tuner["h_ref"], out["h_hat"])

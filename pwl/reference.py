@@ -28,14 +28,16 @@ class ReferenceFilter:
 
     ``online``: the time-varying Kalman filter instead (the runtime's online mode): P from the
     interpolated steady-state P at the first sample, then P = A P A^T + Q, K = P C^T (C P C^T +
-    R)^-1 by ``np.linalg.solve``, P = (I - K C) P every step."""
+    R)^-1 by ``np.linalg.solve``, P = (I - K C) P every step. ``zones``: a ZoneTable on the
+    dynamics grid; K is the centroid gain of the zone of the nearest node (per axis argmin)."""
 
-    def __init__(self, db: GainDatabase, bias=None, online: bool = False):
+    def __init__(self, db: GainDatabase, bias=None, online: bool = False, zones=None):
         from scipy.interpolate import RegularGridInterpolator
 
         self.db = db
         self.bias = bias or {}
         self.online = online
+        self.zones = zones
         ext = db.policy == "extrapolate"
         self.ext = ext
 
@@ -126,6 +128,9 @@ class ReferenceFilter:
                 C = M["C"]
                 K = np.linalg.solve(C @ P @ C.T + M["R"], C @ P).T
                 P = (np.eye(len(P)) - K @ C) @ P
+            elif self.zones is not None:
+                node = tuple(int(np.argmin(np.abs(a.values - v))) for a, v in zip(db.dyn_grid.axes, pd))
+                K = self.zones.gains[self.zones.labels[node]]
             else:
                 K = M["K"]
             xp = xm + K @ r

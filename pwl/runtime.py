@@ -93,7 +93,7 @@ def filter_loop(U, Y, S, TH, DE,
                 dims, ex, cls, s_scale, s_corr,
                 state, t_idx, d_idx,
                 b_chan, b_vals, b_counts, b_bp, b_off, b_str, b_pidx, b_idx, b_share, b_law, b_ratio,
-                b_learn, online, p_tab, cov, V_pinv,
+                b_learn, online, p_tab, cov, V_pinv, z_gains, z_labels,
                 out_x, out_q, out_yhat, out_res, out_z, out_bias, out_hstd, out_flags):
     """Run the filter over n samples; state and search hints are updated in place (chunkable).
 
@@ -125,6 +125,11 @@ def filter_loop(U, Y, S, TH, DE,
     standard deviation of every health estimate, sqrt(diag(V_pinv P_qq V_pinv^T)) with P_qq the
     tuner block of P(k|k) (V_pinv (nh, nq)), unless it has no columns. Not online: p_tab, cov,
     V_pinv and out_hstd are unused (may be empty).
+
+    Zone gains (z_gains non-empty; :mod:`linearize.zones` database zones): the gain is picked,
+    not interpolated: the zone label z_labels[node] of the dynamics node nearest to the operating
+    point (per axis the closer breakpoint) selects the centroid gain z_gains[label * na * ny:]
+    (column-major, na x ny); dyn_tab blocks then hold no K.
     """
     nx, nu, ny, nz, nq, nh = dims[0], dims[1], dims[2], dims[3], dims[4], dims[5]
     na = nx + nq
@@ -351,7 +356,12 @@ def filter_loop(U, Y, S, TH, DE,
                 flags |= FLAG_NO_UPDATE
         for i in range(na):
             xi[i] = xm[i]
-        if update:
+        if update and z_gains.shape[0] > 0:  # the zone gain of the nearest dynamics node
+            node = 0
+            for j in range(nd):
+                node += (d_idx[j] + (1 if d_frac[j] >= 0.5 else 0)) * d_str[j]
+            _add_product(z_gains, z_labels[node] * na * ny, na, res, xi)
+        elif update:
             _add_product(dw, oK, na, res, xi)
         # ---- outputs
         for i in range(nz):
@@ -449,15 +459,22 @@ class PackedModel:
     delta_channel: str | None
     online: bool = False
     p_tab: np.ndarray | None = None
+    z_gains: np.ndarray | None = None
+    z_labels: np.ndarray | None = None
 
     @classmethod
-    def from_database(cls, db: GainDatabase, tune: bool = True, online: bool = False) -> "PackedModel":
+    def from_database(cls, db: GainDatabase, tune: bool = True, online: bool = False,
+                      zones=None) -> "PackedModel":
         """Pack ``db``; ``tune=False`` zeroes the tuner rows of K: the untuned model (states are
         still filtered, the tuners stay at their initial value). ``online``: also pack Q_a, R and
-        the steady-state P for the online-covariance filter (needs ``tune``)."""
+        the steady-state P for the online-covariance filter (needs ``tune``). ``zones``: a
+        :class:`pwl.ekf.ZoneTable` on the dynamics grid whose centroid gains are picked per step
+        instead of interpolating K."""
         if online and not tune:
             raise ValueError("the online-covariance filter estimates the tuners: tune=False is a "
                              "steady-gain option only")
+        if online and zones is not None:
+            raise ValueError("online covariance and zone gains exclude each other")
         tg, dg = db.trim_grid, db.dyn_grid
         trim_tab = np.ascontiguousarray(np.concatenate(
             [db.trim[k].reshape(tg.size, -1) for k in "xuyz"], axis=1))
@@ -469,7 +486,24 @@ class PackedModel:
         aug["A"], aug["B"] = aug["A"][..., :nx, :], aug["B"][..., :nx, :]
         for k in ("C", "D", "F", "G", "K"):  # column-major: the kernel's products are axpys
             aug[k] = np.swapaxes(aug[k], -1, -2)
-        parts = ("A", "B", "C", "D", "F", "G", "K") + (("Q", "R") if online else ())
+        parts = ("A", "B", "C", "D", "F", "G") + (() if zones is not None else ("K",)) + (
+            ("Q", "R") if online else ())
+        z_gains, z_labels = np.zeros(0), np.zeros(0, dtype=np.int64)
+        if zones is not None:
+            same = zones.grid.names == dg.names and all(
+                np.array_equal(a.values, b.values) for a, b in zip(zones.grid.axes, dg.axes))
+            if not same:
+                raise ValueError(f"{db.path}: the zones' lookup grid {zones.grid.names} is not the "
+                                 f"dynamics grid {dg.names}: zones of this database are built by "
+                                 "linearize.zones.database_zones")
+            zg = zones.gains.copy()
+            if zg.shape[1:] != db.kalman["K"].shape[-2:]:
+                raise ValueError(f"{db.path}: zone gains {zg.shape[1:]} do not match K "
+                                 f"{db.kalman['K'].shape[-2:]}")
+            if not tune:
+                zg[:, nx:, :] = 0.0
+            z_gains = np.ascontiguousarray(np.swapaxes(zg, -1, -2).reshape(-1))
+            z_labels = np.ascontiguousarray(zones.flat_labels, dtype=np.int64)
         aug["Q"], aug["R"] = db.kalman["Q"], db.kalman["R"]
         dyn_tab = np.ascontiguousarray(np.concatenate(
             [aug[k].reshape(dg.size, -1) for k in parts], axis=1))
@@ -502,7 +536,8 @@ class PackedModel:
         return cls(trim_tab, dyn_tab, t_pidx, d_pidx, dims, np.array(pairs, dtype=np.float64), classes,
                    np.array([float(s) for _, _, s in db.schedule]), s_corr, chans,
                    db.correction.theta_channel if db.correction else None,
-                   db.correction.delta_channel if db.correction else None, online, p_tab)
+                   db.correction.delta_channel if db.correction else None, online, p_tab,
+                   z_gains, z_labels)
 
     def state_size(self) -> int:
         nx, nu, ny, nz, nq, nh = self.dims

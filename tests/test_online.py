@@ -1,5 +1,5 @@
-"""The online-covariance (full Kalman filter) mode of the runtime: against the numpy reference,
-streaming vs batch, and convergence to scipy's DARE solution at a fixed operating point."""
+"""The online-covariance (full Kalman filter) and zone-gain modes of the runtime: against the numpy
+reference, streaming vs batch, and convergence to scipy's DARE solution at a fixed operating point."""
 import numpy as np
 import pytest
 
@@ -128,3 +128,28 @@ def test_pwl_run_online_writes_the_online_estimates(tmp_path):
     with h5py.File(tmp_path / "out" / "f0.estimates.h5") as f:
         np.testing.assert_array_equal(f["q_hat"][()], want.q_hat)
         assert np.abs(f["q_hat"][()] - steady.q_hat).max() > 1e-6
+
+
+@pytest.mark.parametrize("kw", [{}, {"correction": False}])
+def test_zone_gains_picked_per_step_equal_reference(kw):
+    """Estimator(zones=True) picks the centroid gain of the nearest dynamics node's zone."""
+    from linearize.zones import database_zones
+    from pwl.ekf import ZoneTable
+
+    db = online_db(dyn_shape=(4, 5), **kw)
+    db.zones, _ = database_zones(db, k=3, seed=0)
+    zt = ZoneTable.from_record(db.zones)
+    assert len(set(zt.flat_labels)) == 3
+    U, Y, S, TH, DE = inputs(db, margin=0.05)
+    res = Estimator(db, zones=True).run_arrays(U, Y, S, TH, DE)
+    ref = ReferenceFilter(db, zones=zt).run(U, Y, S, TH, DE)
+    for o, v in ref.items():
+        np.testing.assert_allclose(res.outputs[o], v, rtol=1e-9, atol=1e-9 * np.abs(v).max(initial=1.0),
+                                   err_msg=o)
+    interp = Estimator(db).run_arrays(U, Y, S, TH, DE)
+    assert np.abs(interp.q_hat - res.q_hat).max() > 1e-6
+    with pytest.raises(ValueError, match="exclude"):
+        Estimator(db, zones=True, online=True)
+    db.zones = None
+    with pytest.raises(ValueError, match="no zones record"):
+        Estimator(db, zones=True)

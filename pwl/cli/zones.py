@@ -430,7 +430,7 @@ def compare_database(db_path, logs, k: int = 3, seed: int = 0, settle: float = 1
     the estimator with interpolated gains and with zone gains over ``logs`` that carry truth.
 
     Three estimators: "interp" (the database's steady gains, interpolated), "zones" (the zone
-    centroid gains) and "online" (the full Kalman filter of the same model, :class:`Estimator`
+    centroid gain of the nearest dynamics node, picked per step: ``Estimator(zones=True)``) and "online" (the full Kalman filter of the same model, :class:`Estimator`
     ``online=True``: the EKF baseline). Returns {"text": printable report, "rows": [(log, channel,
     {estimator: (RMS, mean)})] in % of truth, "health": [(log, names, {estimator: median
     estimates}, truth)], "sizes": {...} bytes, "record", "speed": :func:`filter_speed` on the
@@ -474,7 +474,7 @@ def compare_database(db_path, logs, k: int = 3, seed: int = 0, settle: float = 1
         lines.append(f"  zone-gain copy written to {out}")
     rows, health, speed = [], [], {}
     if logs:
-        ests = {"interp": Estimator(db), "zones": Estimator(zoned), "online": Estimator(db, online=True, health_std=False)}
+        ests = {"interp": Estimator(db), "zones": Estimator(zoned, zones=True), "online": Estimator(db, online=True, health_std=False)}
         for path in logs:
             log = read_log(path)
             res = {f: e.run(log) for f, e in ests.items()}
@@ -491,7 +491,7 @@ def compare_database(db_path, logs, k: int = 3, seed: int = 0, settle: float = 1
                                                                settle).values for f, r in res.items()}, tr))
         speed = filter_speed(ests, read_log(logs[0]))
         lines.append(f"\nestimation error, % of truth after the first {settle:g} s (RMS / mean); "
-                     "interp: interpolated steady gains, zones: zone gains, online: full Kalman filter "
+                     "interp: interpolated steady gains, zones: the zone gain of the nearest node, online: full Kalman filter "
                      "(covariance propagated every step)")
         lines.append(f"{'log':<20} {'output':<8} " + " ".join(f"{f + ' RMS':>11}" for f in ests) + " "
                      + " ".join(f"{f + ' mean':>12}" for f in ests))
