@@ -1,6 +1,7 @@
 """pwl bench TARGET [--json]: speed benchmarks reported as ratios against a same-run reference."""
 import importlib
-import json
+
+from .output import print_result
 
 HELP = "benchmarks (interp: interpolation kernel vs RegularGridInterpolator; run: the runtime; table: adaptive tables)"
 
@@ -24,10 +25,5 @@ def run(args) -> int:
     except (ImportError, AttributeError):
         print(f"pwl bench {args.target}: not available in this version")
         return 2
-    res = func()
-    if args.json:
-        print(json.dumps(res, indent=2))
-    else:
-        for k, v in res.items():
-            print(f"{k:>28}: {v:,.4g}" if isinstance(v, float) else f"{k:>28}: {v}")
+    print_result(func(), args.json)
     return 0

@@ -12,6 +12,8 @@ import time
 
 import numpy as np
 
+from .output import plot_or_note
+
 HELP = "fuel-to-air ratio bias observer (seed 004) on a simulated diesel drive cycle"
 
 
@@ -117,11 +119,7 @@ def run(args) -> int:
     print(f"\nacceptance (table RMS <= 0.5 x model and <= 0.7 x sensor): {'met' if ok else 'NOT met'} "
           f"({e_tab / e_model:.3f} x model, {e_tab / e_sensor:.3f} x sensor)")
     if args.plot:
-        try:
-            _plot(sim, runs, k1, args, args.plot)
-            print(f"plot: {args.plot}")
-        except ImportError:
-            print("(no plot: install the plot extra, pip install -e '.[plot]')")
+        plot_or_note(_plot, args.plot, sim, runs, k1, args)
     return 0
 
 

@@ -19,6 +19,8 @@ nominal by definition), then lock it (or give it a much larger noise ratio) and 
 """
 import numpy as np
 
+from .output import plot_or_note
+
 HELP = "the runtime's adaptive bias table on the turbofan: learn a sensor mismatch, then track health"
 
 DEGRADED = {"fan_eff": -0.015, "hpc_eff": -0.02, "hpc_flow": -0.015, "hpt_flow": 0.01}
@@ -113,11 +115,7 @@ def run(args) -> int:
     print(f"learnt T48 bias on the degraded flight: RMS error {np.sqrt(np.mean(err ** 2)):.2f} K against a "
           f"true bias of {out['true_bias'][use].min():.1f}..{out['true_bias'][use].max():.1f} K")
     if args.plot:
-        try:
-            _plot(out, args.plot)
-            print(f"plot: {args.plot}")
-        except ImportError:
-            print("(no plot: install the plot extra, pip install -e '.[plot]')")
+        plot_or_note(_plot, args.plot, out)
     return 0
 
 

@@ -9,6 +9,8 @@ import time
 
 import numpy as np
 
+from .output import plot_or_note
+
 HELP = "run the self-tuning model on the shipped demo database and sample flights"
 
 
@@ -99,11 +101,7 @@ def run(args) -> int:
         print(f"{name + ' est':<20} " + " ".join(f"{100 * v:>9.2f}" for v in snap.values))
         print(f"{name + ' truth':<20} " + " ".join(f"{100 * v:>9.2f}" for v in truth_h))
     if args.plot:
-        try:
-            _plot(plots, names, args.plot)
-            print(f"\nplot: {args.plot}")
-        except ImportError:
-            print("\n(no plot: install the plot extra, pip install -e '.[plot]')")
+        plot_or_note(_plot, args.plot, plots, names, lead="\n")
     return 0
 
 

@@ -5,6 +5,8 @@ import os
 
 import numpy as np
 
+from .output import print_result
+
 HELP = "adaptive look-up tables: seed000 (paper 000 sec. 5), battery (paper 003), bench"
 
 
@@ -35,12 +37,7 @@ def run(args) -> int:
 def _bench(args) -> int:
     from ..bench_tables import bench_tables
 
-    res = bench_tables(n_points=args.points)
-    if args.json:
-        print(json.dumps(res, indent=2))
-    else:
-        for k, v in res.items():
-            print(f"{k:>42}: {v:,.4g}" if isinstance(v, float) else f"{k:>42}: {v}")
+    print_result(bench_tables(n_points=args.points), args.json)
     return 0
 
 

@@ -1,6 +1,8 @@
 """pwl validate DB.h5: the piecewise-linear model open loop versus its nonlinear plant."""
 import numpy as np
 
+from .output import plot_or_note
+
 HELP = "compare the piecewise-linear model (open loop) with the nonlinear plant: steady state and a fuel step"
 
 
@@ -38,11 +40,7 @@ def run(args) -> int:
     worst_tr = float(np.abs(tr["error"]).max())
     print(f"\nworst steady-state error {worst:.3f} %, worst transient error {worst_tr:.3f} %")
     if args.plot:
-        try:
-            _plot(tr, args.plot)
-            print(f"plot: {args.plot}")
-        except ImportError:
-            print("(no plot: install the plot extra, pip install -e '.[plot]')")
+        plot_or_note(_plot, args.plot, tr)
     return 0
 
 
