@@ -349,9 +349,9 @@ def load_bias_tables(path) -> dict:
 _worker_est = None
 
 
-def _init_worker(db_path, online=False):
+def _init_worker(db_path, online=False, zones=False):
     global _worker_est
-    _worker_est = Estimator(db_path, online=online)
+    _worker_est = Estimator(db_path, online=online, zones=zones)
 
 
 def _run_one(log_path, out_path):
@@ -367,9 +367,9 @@ def output_path(log_path, outdir, csv: bool = False) -> str:
 
 
 def run_many(db_path, log_paths, outdir, workers: int | None = None, csv: bool = False,
-             progress=None, online: bool = False):
+             progress=None, online: bool = False, zones: bool = False):
     """Estimate every log into ``outdir`` (one results file per log), in parallel processes
-    (``online``: the full Kalman filter, :class:`Estimator` ``online=True``).
+    (``online``, ``zones``: the full Kalman filter or the zone gains, as for :class:`Estimator`).
 
     Returns a list of (log, output, counts or None, error message or None) in input order; a log
     that fails is reported and the others still complete. ``progress(done, total, item)`` is
@@ -385,13 +385,13 @@ def run_many(db_path, log_paths, outdir, workers: int | None = None, csv: bool =
     workers = max(1, min(len(logs), workers or os.cpu_count() or 1))
     results = []
     if workers == 1:
-        _init_worker(db_path, online)
+        _init_worker(db_path, online, zones)
         for i, (lg, out) in enumerate(zip(logs, outs)):
             results.append(_run_one(lg, out))
             if progress:
                 progress(i + 1, len(logs), results[-1])
         return results
-    with ProcessPoolExecutor(workers, initializer=_init_worker, initargs=(os.fspath(db_path), online)) as ex:
+    with ProcessPoolExecutor(workers, initializer=_init_worker, initargs=(os.fspath(db_path), online, zones)) as ex:
         futs = [ex.submit(_run_one, lg, out) for lg, out in zip(logs, outs)]
         for i, fut in enumerate(futs):
             results.append(fut.result())

@@ -128,6 +128,10 @@ def test_pwl_run_online_writes_the_online_estimates(tmp_path):
     with h5py.File(tmp_path / "out" / "f0.estimates.h5") as f:
         np.testing.assert_array_equal(f["q_hat"][()], want.q_hat)
         assert np.abs(f["q_hat"][()] - steady.q_hat).max() > 1e-6
+    # options the database cannot serve fail before any log is run, with the reason
+    assert main(["run", str(tmp_path / "db.h5"), str(tmp_path / "f0.h5"), "-o", str(tmp_path / "o2"),
+                 "--zones"]) == 2
+    assert not (tmp_path / "o2").exists()
 
 
 @pytest.mark.parametrize("kw", [{}, {"correction": False}])

@@ -16,6 +16,9 @@ def add_arguments(p):
     p.add_argument("--online", action="store_true",
                    help="full Kalman filter: propagate the covariance and solve the gain every step "
                         "(about 7x slower than the database's steady gains; for comparison)")
+    p.add_argument("--zones", action="store_true",
+                   help="pick the gain of the database's k-means zones (/zones, from pwl zones --database "
+                        "DB --out ZONED.h5) instead of interpolating it")
 
 
 def expand(paths):
@@ -47,9 +50,14 @@ def expand(paths):
 
 def run(args) -> int:
     from ..database import GainDatabase
-    from ..estimator import run_many
+    from ..estimator import Estimator, run_many
 
-    GainDatabase.open(args.database)  # fail early, with the named error, on a bad database
+    db = GainDatabase.open(args.database)  # fail early, with the named error, on a bad database
+    try:  # and on options the database cannot serve (no /zones, online with zones)
+        Estimator(db, online=args.online, zones=args.zones)
+    except ValueError as e:
+        print(f"pwl run: {e}", file=sys.stderr)
+        return 2
     logs = expand(args.logs)
     if not logs:
         print("pwl run: no logs found", file=sys.stderr)
@@ -63,7 +71,8 @@ def run(args) -> int:
             f"{counts['trim_outside']} outside the grid -> {out}")
         print(f"[{done}/{total}] {log}: {status}", file=sys.stderr, flush=True)
 
-    results = run_many(args.database, logs, args.outdir, args.workers, args.csv, progress, online=args.online)
+    results = run_many(args.database, logs, args.outdir, args.workers, args.csv, progress, online=args.online,
+                       zones=args.zones)
     failed = [r for r in results if r[3]]
     n = sum(r[2]["samples"] for r in results if r[2])
     dt = time.perf_counter() - t0
