@@ -68,11 +68,22 @@ def correction_factors(ex, theta, delta, fac):
 @njit(cache=True, nogil=True, inline="always")
 def _add_product(dw, o, rows, v, out):
     """out[:rows] += M v for the column-major matrix M stored at dw[o:] (rows x v.size): one
-    contiguous axpy per column."""
+    contiguous axpy per column, four rows per pass. The columns are short (2-12 rows): a
+    compiler-vectorised loop pays its alias checks and remainder per column, which cost more
+    than the arithmetic (measured 19 ns per step slower on the demo database)."""
     for j in range(v.shape[0]):
         c = v[j]
-        for i in range(rows):
-            out[i] += dw[o + j * rows + i] * c
+        b = o + j * rows
+        i = 0
+        while i + 4 <= rows:
+            out[i] += dw[b + i] * c
+            out[i + 1] += dw[b + i + 1] * c
+            out[i + 2] += dw[b + i + 2] * c
+            out[i + 3] += dw[b + i + 3] * c
+            i += 4
+        while i < rows:
+            out[i] += dw[b + i] * c
+            i += 1
 
 
 @njit(cache=True, nogil=True, inline="always")
