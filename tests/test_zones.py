@@ -395,6 +395,8 @@ def test_compare_database_zone_vs_interpolated(tmp_path):
         assert e["interp"][0] == pytest.approx(0.0, abs=1e-9) and e["zones"][0] > 1e-6
         assert e["online"][0] > 1e-6 and np.isfinite(e["zones"][0]) and np.isfinite(e["online"][0])
     assert set(res["speed"]["steps_per_s"]) == {"interp", "zones", "online"}
+    assert res["traces"]["channel"] == db.names["z"][0]
+    np.testing.assert_allclose(res["traces"]["errors"]["interp"], 0.0, atol=1e-9)
     assert res["sizes"]["record_bytes"] == ZoneTable.from_record(res["record"]).nbytes()
     assert GainDatabase.open(tmp_path / "zoned.h5").zones is not None
     assert "zones RMS" in res["text"] and len(res["health"]) == 1

@@ -401,7 +401,54 @@ def _run_database(args) -> int:
             logs = [p for p in d_logs if os.path.exists(p)]
     res = compare_database(args.database, logs or [], args.k, args.seed, args.settle, args.out)
     print(res["text"])
+    if args.plots:
+        try:
+            files = _plot_database(args.plots, res)
+            print("\nfigures: " + ", ".join(files))
+        except ImportError:
+            print("\n(no figures: install the plot extra, pip install -e '.[plot]')")
     return 0
+
+
+def _plot_database(prefix, res):
+    """The zone of every dynamics node (first two axes) and, with logs, the error traces of the
+    three estimators on the last log."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ..ekf import ZoneTable
+
+    t = ZoneTable.from_record(res["record"])
+    tr = res.get("traces")
+    fig, axes = plt.subplots(1, 2 if tr else 1, figsize=(11 if tr else 5.5, 4.2), squeeze=False)
+    ax = axes[0, 0]
+    g = t.grid
+    nodes = g.nodes()
+    lab = t.flat_labels
+    x, y = (nodes[:, 0], nodes[:, 1]) if g.ndim > 1 else (nodes[:, 0], np.zeros(len(nodes)))
+    sc = ax.scatter(x, y, c=lab, cmap="viridis", s=120, vmin=0, vmax=max(t.k - 1, 1))
+    for xi, yi, li in zip(x, y, lab):
+        ax.annotate(str(li), (xi, yi), ha="center", va="center", fontsize=8, color="w")
+    ax.set_xlabel(f"{g.axes[0].name} [{g.axes[0].unit}]")
+    if g.ndim > 1:
+        ax.set_ylabel(f"{g.axes[1].name} [{g.axes[1].unit}]")
+    ax.set_title(f"gain zones of the dynamics nodes (k = {t.k})")
+    fig.colorbar(sc, ax=ax, label="zone", ticks=range(t.k))
+    if tr:
+        ax = axes[0, 1]
+        w = max(1, int(round(2.0 / max(np.median(np.diff(tr["time"])), 1e-9))))
+        for f, e in tr["errors"].items():  # 2-s running means: the sample noise hides the curves
+            ax.plot(tr["time"][w - 1:], np.convolve(e, np.ones(w) / w, mode="valid"), lw=0.9, label=f)
+        ax.set_xlabel("time [s]")
+        ax.set_ylabel(f"{tr['channel']} error [% of truth], 2-s mean")
+        ax.set_title(f"{tr['log']}: interpolated, zone and full-Kalman gains")
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    name = f"{prefix}_database.png"
+    fig.savefig(name, dpi=110)
+    plt.close(fig)
+    return [name]
 
 
 def filter_speed(ests: dict, log, repeat: int = 5) -> dict:
@@ -434,7 +481,8 @@ def compare_database(db_path, logs, k: int = 3, seed: int = 0, settle: float = 1
     ``online=True``: the EKF baseline). Returns {"text": printable report, "rows": [(log, channel,
     {estimator: (RMS, mean)})] in % of truth, "health": [(log, names, {estimator: median
     estimates}, truth)], "sizes": {...} bytes, "record", "speed": :func:`filter_speed` on the
-    first log}."""
+    first log, "traces": the last log's % error of its first unmeasured output with truth, per
+    estimator, or None}."""
     import os
     import tempfile
 
@@ -472,7 +520,7 @@ def compare_database(db_path, logs, k: int = 3, seed: int = 0, settle: float = 1
                  "(the zoned copy keeps a K per node for the runtime, holding its zone's centroid)")
     if out:
         lines.append(f"  zone-gain copy written to {out}")
-    rows, health, speed = [], [], {}
+    rows, health, speed, traces = [], [], {}, None
     if logs:
         ests = {"interp": Estimator(db), "zones": Estimator(zoned, zones=True), "online": Estimator(db, online=True, health_std=False)}
         for path in logs:
@@ -480,6 +528,11 @@ def compare_database(db_path, logs, k: int = 3, seed: int = 0, settle: float = 1
             res = {f: e.run(log) for f, e in ests.items()}
             name = os.path.splitext(os.path.basename(os.fspath(path)))[0]
             settled = log.time >= log.time[0] + settle
+            ch0 = next((c for c in db.names["z"] if c in log.truth), None)
+            if ch0 is not None:  # the last log's error traces, for the figure
+                traces = {"log": name, "channel": ch0, "time": log.time,
+                          "errors": {f: 100.0 * (r.channel("z_hat", ch0) - log.truth[ch0])
+                                     / np.abs(log.truth[ch0]) for f, r in res.items()}}
             for ch in db.names["z"]:
                 if ch in log.truth:
                     rows.append((name, ch, {f: errors(r.channel("z_hat", ch), log.truth[ch], settled)
@@ -512,4 +565,4 @@ def compare_database(db_path, logs, k: int = 3, seed: int = 0, settle: float = 1
         lines.append(f"  zone gains (SEKF) are {speed['ratio']:.1f}x faster per step than the full "
                      "Kalman filter (EKF) of the same model")
     return {"text": "\n".join(lines), "rows": rows, "health": health, "sizes": sizes, "record": record,
-            "speed": speed}
+            "speed": speed, "traces": traces}
