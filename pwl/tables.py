@@ -217,11 +217,20 @@ def table_run(values, counts, bp, off, strides, extrapolate, points, refs, law, 
     otherwise). Returns (number of points outside the grid, number of updates made).
     """
     n = points.shape[1]
-    idx = np.zeros(n, dtype=np.int64)
-    frac = np.zeros(n, dtype=np.float64)
-    wts = np.zeros(1 << n, dtype=np.float64)
-    rows = np.zeros(1 << n, dtype=np.int64)
-    work = np.zeros(values.shape[0] if law == LAW_CORRELATED else 0, dtype=np.float64)
+    work = (np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.float64), np.zeros(1 << n, dtype=np.float64),
+            np.zeros(1 << n, dtype=np.int64),
+            np.zeros(values.shape[0] if law == LAW_CORRELATED else 0, dtype=np.float64))
+    return _table_steps(values, counts, bp, off, strides, extrapolate, points, refs, law, ratio, warmup,
+                        update_outside, pred, history, P, Sigma, noise_var, work)
+
+
+@njit(cache=True, nogil=True, _nrt=False)
+def _table_steps(values, counts, bp, off, strides, extrapolate, points, refs, law, ratio, warmup,
+                 update_outside, pred, history, P, Sigma, noise_var, work):
+    """The loop of :func:`table_run` (same arguments plus its workspace), compiled without numba's
+    reference counting like :func:`pwl.runtime._steps`."""
+    idx, frac, wts, rows, cwork = work
+    n = points.shape[1]
     keep = history.shape[0] == points.shape[0]
     outside = 0
     updated = 0
@@ -241,13 +250,14 @@ def table_run(values, counts, bp, off, strides, extrapolate, points, refs, law, 
                 outside += 1
             if (flags == 0 or update_outside) and math.isfinite(refs[k]):
                 if law == LAW_CORRELATED:
-                    correlated_update(values, P, Sigma, counts, wts, rows, m, refs[k] - xh, noise_var, work)
+                    correlated_update(values, P, Sigma, counts, wts, rows, m, refs[k] - xh, noise_var, cwork)
                 else:
                     r = ratio if warmup <= 0.0 else count_ratio(counts, wts, rows, m, ratio, warmup)
                     table_update(values, counts, wts, rows, m, refs[k] - xh, law, r, frac)
                 updated += 1
         if keep:
-            history[k, :] = values
+            for i in range(values.shape[0]):
+                history[k, i] = values[i]
     return outside, updated
 
 
