@@ -318,12 +318,13 @@ def ekf_loop(f, jac_f, h, jac_h, U, Y, x0, P0, Q, R, p, X_out, Pd_out):
     Returns the number of steps whose innovation covariance was not positive definite (no
     correction made).
 
-    The gain and covariance steps are :func:`pwl.covariance.correct` and
-    :func:`pwl.covariance.propagate` written out in the loop: called (or inlined by numba, which
-    then adds reference counting of their arrays every step) they cost 25-70 % more on the
-    2-state chen2020 system (44 ns per step written out, 54 ns inlined, 74 ns called), and this
-    loop is the baseline the SEKF's speed is measured against. Both are tested against numpy
-    (``tests/test_zones.py``, ``tests/test_online.py``)."""
+    The gain step is :func:`pwl.covariance.correct` written out in the loop, with a dense time
+    update P = A P A^T + Q (the plant's A has no structure to use). Called, or inlined by numba
+    (which then adds reference counting of their arrays every step), the kernels cost 25-70 %
+    more on the 2-state chen2020 system: 44 ns per step written out, 54 ns inlined, 74 ns
+    called. Compiling the loop without reference counting and using the kernels gave 46 ns.
+    This loop is the baseline the SEKF's speed is measured against. Both are tested against
+    numpy (``tests/test_zones.py``, ``tests/test_online.py``)."""
     n = x0.shape[0]
     m = Y.shape[1]
     T = U.shape[0]

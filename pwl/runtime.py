@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from .covariance import correct, propagate
+from .covariance import correct, propagate_augmented
 from .database import GainDatabase
 from .grid import locate
 from .interp import corner_weights, interp_rows
@@ -244,7 +244,7 @@ def _steps(U, Y, S, TH, DE,
                 for i in range(na):
                     for j in range(na):
                         Qa[i, j] = dw[oQ + i * na + j]
-                propagate(Aa, P, Qa, AP)
+                propagate_augmented(Aa, P, Qa, AP)
         # ---- trim-shift adjustment and time update
         for j in range(nx):
             xi[j] = state[ox + j] - tw[tx + j]
@@ -416,7 +416,8 @@ def filter_loop(U, Y, S, TH, DE,
     pb = np.empty(nbd)
     bias = np.zeros(max(nb, 1))
     P = cov[:no * no].reshape((no, no))
-    Aa = np.eye(no)             # the tuner rows [0 I] stay as set here
+    ro = nx if online else 0
+    Aa = np.empty((ro, no))     # the state rows of A_a; its tuner rows [0 I] are implied
     Ca = np.empty((mo, no))
     Qa = np.empty((no, no))
     Ra = np.empty((mo, mo))
@@ -424,7 +425,7 @@ def filter_loop(U, Y, S, TH, DE,
     Sw = np.empty((mo, mo))
     Lw = np.empty((mo, mo))
     Kw = np.empty((no, mo))
-    AP = np.empty((no, no))
+    AP = np.empty((ro, no))
     work = (tw, dw, t_frac, d_frac, t_wts, t_rows, d_wts, d_rows, p, pt, pd, du, xi, xm, res, yh, zh,
             fac, b_frac, b_wts, b_rows, pb, bias, P, Aa, Ca, Qa, Ra, PCt, Sw, Lw, Kw, AP)
     return _steps(U, Y, S, TH, DE, trim_tab, t_bp, t_off, t_str, t_pidx, dyn_tab, d_bp, d_off,

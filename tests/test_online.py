@@ -84,7 +84,7 @@ def test_online_covariance_converges_to_dare_at_a_fixed_point():
 
 @pytest.mark.parametrize("m", [1, 3])
 def test_covariance_kernels_against_numpy(m):
-    from pwl.covariance import correct, propagate
+    from pwl.covariance import correct, propagate_augmented
 
     rng = np.random.default_rng(m)
     n = 5
@@ -96,8 +96,12 @@ def test_covariance_kernels_against_numpy(m):
     assert correct(Pk, C, R, np.empty((n, m)), np.empty((m, m)), np.empty((m, m)), K)
     np.testing.assert_allclose(K, K_np, rtol=1e-12, atol=1e-13)
     np.testing.assert_allclose(Pk, Pp_np, rtol=1e-11, atol=1e-13)
-    propagate(A, Pk, Q, np.empty((n, n)))
-    np.testing.assert_allclose(Pk, A @ Pp_np @ A.T + Q, rtol=1e-11, atol=1e-12)
+    # the time update of the augmented form [[A_top], [0 I]] (2 state rows, 3 random-walk tuners)
+    Aa = np.vstack([A[:2], np.hstack([np.zeros((3, 2)), np.eye(3)])])
+    Pa = P.copy()
+    propagate_augmented(np.ascontiguousarray(A[:2]), Pa, Q, np.empty((2, n)))
+    np.testing.assert_allclose(Pa, Aa @ P @ Aa.T + Q, rtol=1e-12, atol=1e-13)
+    np.testing.assert_array_equal(Pa, Pa.T)
     # not positive definite: refused, nothing changed
     Pk2 = Pk.copy()
     assert not correct(Pk2, C, -10.0 * np.eye(m) - C @ Pk @ C.T, np.empty((n, m)), np.empty((m, m)),

@@ -15,7 +15,7 @@ def add_arguments(p):
     p.add_argument("-j", "--workers", type=int, default=None, help="parallel processes (default: cores)")
     p.add_argument("--online", action="store_true",
                    help="full Kalman filter: propagate the covariance and solve the gain every step "
-                        "(about 8x slower than the database's steady gains; for comparison)")
+                        "(about 7x slower than the database's steady gains; for comparison)")
     p.add_argument("--zones", action="store_true",
                    help="pick the gain of the database's k-means zones (/zones, from pwl zones --database "
                         "DB --out ZONED.h5) instead of interpolating it")
