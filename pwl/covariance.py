@@ -3,7 +3,7 @@
 The steady-state filter of the runtime uses gains solved offline (:mod:`linearize.kalman`, the DARE).
 A full (extended) Kalman filter instead carries the error covariance P and solves the gain every
 step from the current Jacobians; these kernels are that step, used by the online-covariance mode
-of :mod:`pwl.runtime` (and, written out, by the EKF of :mod:`pwl.ekf`)::
+of :mod:`pwl.runtime`::
 
     correct:    S = C P C^T + R,  K = P C^T S^-1,  P <- P - K (P C^T)^T      (measurement update)
     propagate_augmented:  P <- A P A^T + Q  for A = [[A_top], [0 I]]             (time update)
