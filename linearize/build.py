@@ -225,7 +225,8 @@ def _key(spec: BuildSpec, ref) -> str:
 def _run(executor, fn, tasks, progress: Progress, on_result):
     """Submit ``tasks`` (name, args) and hand each (name, result or exception) to ``on_result``."""
     if isinstance(executor, SerialExecutor):  # one at a time, each result kept before the next
-        pairs = ((name, executor.submit(threads.call, fn, *args)) for name, args in tasks)
+        # (in this process, already on one BLAS thread: build and retune set it)
+        pairs = ((name, executor.submit(fn, *args)) for name, args in tasks)
     else:
         futs = {executor.submit(threads.call, fn, *args): name for name, args in tasks}
         pairs = ((futs[f], f) for f in as_completed(futs))

@@ -219,7 +219,7 @@ class Estimator:
         augmented state [dx; q] in corrected units (zeros before the first sample); else None."""
         if not self.pm.online:
             return None
-        na = int(np.sqrt(self.cov.size))
+        na = int(self.pm.dims[0] + self.pm.dims[4])
         return self.cov.reshape(na, na).copy()
 
     @property

@@ -549,7 +549,8 @@ class PackedModel:
                 zg[:, nx:, :] = 0.0
             z_gains = np.ascontiguousarray(np.swapaxes(zg, -1, -2).reshape(-1))
             z_labels = np.ascontiguousarray(zones.flat_labels, dtype=np.int64)
-        aug["Q"], aug["R"] = db.kalman["Q"], db.kalman["R"]
+        if online:
+            aug["Q"], aug["R"] = db.kalman["Q"], db.kalman["R"]
         dyn_tab = np.ascontiguousarray(np.concatenate(
             [aug[k].reshape(dg.size, -1) for k in parts], axis=1))
         na = nx + db.n("q")

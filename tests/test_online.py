@@ -16,6 +16,13 @@ def spd(rng, n, scale):
     return scale * (G @ G.T / n + 0.5 * np.eye(n))
 
 
+def assert_equals_reference(res, ref):
+    """Every output of ``res`` equals the reference's to 1e-9 (relative to each output's size)."""
+    for o, v in ref.items():
+        np.testing.assert_allclose(res.outputs[o], v, rtol=1e-9, atol=1e-9 * np.abs(v).max(initial=1.0),
+                                   err_msg=o)
+
+
 def online_db(**kw):
     """The synthetic database with different symmetric positive definite Q, R, P at every node."""
     db = make_database(**kw)
@@ -35,9 +42,7 @@ def test_online_equals_numpy_reference(kw):
     U, Y, S, TH, DE = inputs(db, margin=0.05)
     res = Estimator(db, online=True).run_arrays(U, Y, S, TH, DE)
     ref = ReferenceFilter(db, online=True).run(U, Y, S, TH, DE)
-    for o, v in ref.items():
-        np.testing.assert_allclose(res.outputs[o], v, rtol=1e-9, atol=1e-9 * np.abs(v).max(initial=1.0),
-                                   err_msg=o)
+    assert_equals_reference(res, ref)
     # without the health standard deviations: the same estimates, no h_std output
     lean = Estimator(db, online=True, health_std=False).run_arrays(U, Y, S, TH, DE)
     assert "h_std" not in lean.outputs
@@ -151,9 +156,7 @@ def test_zone_gains_picked_per_step_equal_reference(kw):
     U, Y, S, TH, DE = inputs(db, margin=0.05)
     res = Estimator(db, zones=True).run_arrays(U, Y, S, TH, DE)
     ref = ReferenceFilter(db, zones=zt).run(U, Y, S, TH, DE)
-    for o, v in ref.items():
-        np.testing.assert_allclose(res.outputs[o], v, rtol=1e-9, atol=1e-9 * np.abs(v).max(initial=1.0),
-                                   err_msg=o)
+    assert_equals_reference(res, ref)
     interp = Estimator(db).run_arrays(U, Y, S, TH, DE)
     assert np.abs(interp.q_hat - res.q_hat).max() > 1e-6
     with pytest.raises(ValueError, match="exclude"):
