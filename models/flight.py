@@ -55,14 +55,26 @@ def _smooth(t, kt, kv):
 
 
 def flight_profile(preset="short", durations=None, cruise_alt=None, cruise_mach=0.8, dTamb=0.0,
-                   dt=DT, seed=0, dither=True):
+                   dt=DT, seed=0, dither=True, tra=None):
     """Altitude (m), Mach, TRA (%) and dTamb (K) versus time; returns a dict of arrays.
 
     ``durations`` overrides the preset's phase durations (seconds, keys of :data:`PHASES`).
     ``cruise_alt`` defaults to 10 700 m for the long preset and 9 000 m for the short one.
     ``dither`` adds seeded throttle steps of +-2..4 % TRA every 40..90 s in climb and cruise
     (they excite the spool dynamics for estimation demos).
+    ``tra`` overrides entries of :data:`TRA` (throttle %, 0..100) for this profile, e.g.
+    ``{"takeoff": 85.0, "cruise": 84.0}``; unknown keys raise ValueError.
     """
+    tr = dict(TRA)
+    if tra:
+        bad = set(tra) - set(TRA)
+        if bad:
+            raise ValueError(f"unknown throttle settings {sorted(bad)}; known: {', '.join(TRA)}")
+        for k, v in tra.items():
+            v = float(v)
+            if not 0.0 <= v <= 100.0:
+                raise ValueError(f"throttle {k}={v} % outside 0..100 %")
+            tr[k] = v
     d = dict(PRESETS[preset]) if preset else dict(PRESETS["short"])
     if durations:
         bad = set(durations) - set(PHASES)
@@ -90,7 +102,7 @@ def flight_profile(preset="short", durations=None, cruise_alt=None, cruise_mach=
           e["descent"], e["approach"], e["taxi_in"], e["taxi_in"] + 0.5 * d["taxi_in"], T]
     vm = [0.0, 0.0, 0.25, min(0.6, cruise_mach), cruise_mach, cruise_mach, 0.3, 0.2, 0.02, 0.0]
     # throttle knots (short pushes/pulls of 5 s)
-    kt_, vt_ = [0.0], [TRA["idle"]]
+    kt_, vt_ = [0.0], [tr["idle"]]
 
     def seg(t0, t1, val):
         kt_.extend([t0, min(t0 + 5.0, t1)])
@@ -98,12 +110,12 @@ def flight_profile(preset="short", durations=None, cruise_alt=None, cruise_mach=
         kt_.append(t1)
         vt_.append(val)
 
-    seg(e["takeoff"], e_end["takeoff"], TRA["takeoff"])
-    seg(e["climb"], e_end["climb"], TRA["climb"])
-    seg(e["cruise"], e_end["cruise"], TRA["cruise"])
-    seg(e["descent"], e_end["descent"], TRA["idle"])
-    seg(e["approach"], e_end["approach"], TRA["approach"])
-    seg(e["taxi_in"], e_end["taxi_in"], TRA["idle"])
+    seg(e["takeoff"], e_end["takeoff"], tr["takeoff"])
+    seg(e["climb"], e_end["climb"], tr["climb"])
+    seg(e["cruise"], e_end["cruise"], tr["cruise"])
+    seg(e["descent"], e_end["descent"], tr["idle"])
+    seg(e["approach"], e_end["approach"], tr["approach"])
+    seg(e["taxi_in"], e_end["taxi_in"], tr["idle"])
     kt_ = np.array(kt_)
     vt_ = np.array(vt_)
     keep = np.concatenate([[True], np.diff(kt_) > 0])

@@ -127,6 +127,33 @@ class GainDatabase:
             self.schedule = [(p, False, 1.0) for p in self.names["p"]]
         self.validate()
 
+    # ---- parameter correction and the operating point ------------------------------------
+    def exponents_of(self, channel: str) -> np.ndarray:
+        """(a, b) correction exponents of a channel (the first kind x, u, y, z naming it; zeros
+        without correction or for a channel no kind names)."""
+        if self.correction is not None:
+            for k in "xuyz":
+                if channel in self.names[k]:
+                    return self.correction.exponents[k][self.names[k].index(channel)]
+        return np.zeros(2)
+
+    def correction_factor(self, channels, theta, delta) -> np.ndarray:
+        """theta**a * delta**b per channel: theta, delta (n,) -> (n, len(channels)); a raw value
+        divided by it is the corrected value the database's trims and matrices use."""
+        th = np.asarray(theta, dtype=np.float64).reshape(-1, 1)
+        de = np.asarray(delta, dtype=np.float64).reshape(-1, 1)
+        ex = np.array([self.exponents_of(c) for c in channels]).reshape(-1, 2)
+        return th ** ex[:, 0] * de ** ex[:, 1]
+
+    def operating_point(self, S, theta, delta) -> np.ndarray:
+        """Scheduling variables p (n, np) from the raw schedule channels S (n, np) and theta,
+        delta (n,) (the inlet ratios T/T_std, P/P_std), as the runtime computes them."""
+        S = np.atleast_2d(np.asarray(S, dtype=np.float64))
+        fac = self.correction_factor([c for c, _, _ in self.schedule], theta, delta)
+        corr = np.array([bool(c) for _, c, _ in self.schedule])
+        scale = np.array([float(s) for _, _, s in self.schedule])
+        return S * scale / np.where(corr, fac, 1.0)
+
     # ---- the schema --------------------------------------------------------------------------
     def schema(self):
         """(path, dtype kind, shape) of every dataset, from the sizes. The one schema definition."""

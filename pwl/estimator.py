@@ -17,6 +17,7 @@ from .h5io import atomic_h5, write_strings
 from .logs import Log, read_header, read_log, read_rows
 from .runtime import (FLAG_DYN_OUTSIDE, FLAG_HELD_INPUT, FLAG_NO_UPDATE, FLAG_NOT_STARTED,
                       FLAG_TRIM_OUTSIDE, PackedModel, filter_loop, hat_health)
+from .snapshots import SNAPSHOT_OUTPUTS, SnapshotAccumulator, Snapshots, SteadyConfig
 from .tables import LAWS, AdaptiveTable, TableError
 
 OUTPUTS = ("x_hat", "q_hat", "h_hat", "y_hat", "residual", "z_hat")
@@ -42,6 +43,7 @@ class Result:
     names: dict[str, list[str]]
     source: str = "<memory>"
     attrs: dict = field(default_factory=dict)
+    snapshots: Snapshots | None = None
 
     def __getattr__(self, name):
         if name in self.__dict__.get("outputs", {}):
@@ -72,14 +74,26 @@ class Result:
             write_csv(path, Log(self.time, {k: v for k, v in cols.items() if k != "time"}, {}, path=str(path)))
             return
         with atomic_h5(path) as f:
-            _init_result_file(f, self.names, self.source, self.counts(), 0)
+            _init_result_file(f, self.names, self.source, self.counts(), 0, self.attrs,
+                              self.attrs.get("provenance"))
             _append(f, self.time, self.outputs, self.flags)
+            if self.snapshots is not None:
+                self.snapshots.save(f.create_group("snapshots"))
 
 
-def _init_result_file(f, names, source, counts, n):
+#: log attributes copied into results files (who flew what, when: the fleet's bookkeeping)
+LOG_ATTRS = ("engine", "flight_index", "flight_time")
+
+
+def _init_result_file(f, names, source, counts, n, attrs=None, provenance=None):
     f.attrs["format"] = "pwl-estimates"
     f.attrs["format_version"] = 1
     f.attrs["source"] = str(source)
+    for k, v in (attrs or {}).items():
+        if k in LOG_ATTRS:
+            f.attrs[k] = v
+    for k, v in (provenance or {}).items():
+        f.attrs[k] = v
     f.create_dataset("time", shape=(n,), maxshape=(None,), dtype="f8", chunks=(8192,))
     f.create_dataset("flags", shape=(n,), maxshape=(None,), dtype="i8", chunks=(8192,))
     for o in names:
@@ -128,6 +142,7 @@ class Estimator:
     def __init__(self, db, q0=None, tune: bool = True, bias: dict | None = None, online: bool = False,
                  health_std: bool = True, zones: bool = False):
         self.db = db if isinstance(db, GainDatabase) else GainDatabase.open(db)
+        self.tune = tune
         zt = None
         if zones:
             from .ekf import ZoneTable
@@ -146,6 +161,7 @@ class Estimator:
                 units.setdefault(c, pu)
         self.channel_units = units
         self._set_bias(bias or {})
+        self.steady = SteadyConfig()
         self.reset(q0)
 
     # ---- bias tables (the tuning element) ---------------------------------------------------
@@ -284,10 +300,62 @@ class Estimator:
         log = log if isinstance(log, Log) else read_log(log)
         if reset:
             self.reset()
-        res = self.run_arrays(*self._split(log), time=log.time)
+        arrays = self._split(log)
+        res = self.run_arrays(*arrays, time=log.time)
         res.source = log.path
+        res.attrs = {k: v for k, v in log.attrs.items() if k in LOG_ATTRS} | {"provenance": self.provenance}
         self._check_envelope(res.flags, res.time, log.path)
+        acc = self._snapshot_accumulator(log.dt)
+        self._accumulate(acc, 0, res, arrays)
+        res.snapshots = acc.snapshots()
         return res
+
+    @property
+    def provenance(self) -> dict:
+        """What produced a results file: database path, estimator mode, pwl version, time."""
+        import datetime
+
+        from . import __version__
+        mode = "online" if self.pm.online else ("zones" if self.pm.z_labels.size else "steady")
+        if not self.tune:
+            mode += "+untuned"
+        if self.bias:
+            mode += "+bias"
+        return {"database": os.path.abspath(self.db.path) if self.db.path != "<memory>" else "<memory>",
+                "mode": mode, "pwl_version": __version__,
+                "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")}
+
+    # ---- steady-state snapshots (for diagnostics) --------------------------------------------
+    @property
+    def snapshot_channels(self) -> list[str]:
+        """The raw channels a snapshot averages: inputs, sensed outputs, schedule, theta/delta."""
+        return self.input_channels
+
+    def _snapshot_accumulator(self, dt) -> SnapshotAccumulator:
+        db = self.db
+        ax = {a.name: a for a in db.trim_grid.axes + db.dyn_grid.axes}
+        spans = [ax[p].hi - ax[p].lo if p in ax else 1.0 for p in db.names["p"]]
+        dt = dt if np.isfinite(dt) and dt > 0 else db.dt
+        return SnapshotAccumulator(self.snapshot_channels, db.names["p"], spans, dt,
+                                   {o: self.names[o] for o in SNAPSHOT_OUTPUTS}, self.steady)
+
+    def _accumulate(self, acc, start, res, arrays):
+        """Add one run's samples (``arrays`` as from :meth:`_split`) to a snapshot accumulator."""
+        U, Y, S, TH, DE = arrays
+        db, pm = self.db, self.pm
+        n = U.shape[0]
+        th = np.ones(n) if TH is None else TH
+        de = np.ones(n) if DE is None else DE
+        cols = dict(zip(db.names["u"], U.T)) | dict(zip(db.names["y"], Y.T)) | dict(
+            zip(pm.schedule_channels, S.T))
+        if pm.theta_channel:
+            cols[pm.theta_channel] = th * db.correction.T_std
+            cols[pm.delta_channel] = de * db.correction.P_std
+        raw = np.column_stack([cols[c] for c in acc.channels])
+        with np.errstate(invalid="ignore"):
+            p = db.operating_point(S, th, de)
+        outside = (res.flags & (FLAG_TRIM_OUTSIDE | FLAG_DYN_OUTSIDE | FLAG_NOT_STARTED)) != 0
+        acc.add(start, res.time, raw, p, {o: res.outputs[o] for o in SNAPSHOT_OUTPUTS}, outside)
 
     def step(self, sample: dict) -> dict:
         """One sample (channel name -> value) -> estimates of this step (name -> value) and flags."""
@@ -318,21 +386,27 @@ class Estimator:
         if os.fspath(out_path).lower().endswith(".csv") or not log_path.lower().endswith((".h5", ".hdf5")):
             res = self.run(log_path, reset=False)
             res.save(out_path)
-            return res.counts()
+            return res.counts() | {"snapshots": len(res.snapshots)}
         head = read_header(log_path)
         n = len(head)
         counts = None
+        acc = self._snapshot_accumulator(head.dt)
         with atomic_h5(out_path) as f:
-            _init_result_file(f, self.names, log_path, {}, 0)
+            _init_result_file(f, self.names, log_path, {}, 0, head.attrs, self.provenance)
             for a in range(0, n, chunk):
                 part = read_rows(head, a, min(n, a + chunk))
-                res = self.run_arrays(*self._split(part), time=part.time)
+                arrays = self._split(part)
+                res = self.run_arrays(*arrays, time=part.time)
                 self._check_envelope(res.flags, res.time, log_path)
                 _append(f, res.time, res.outputs, res.flags)
+                self._accumulate(acc, a, res, arrays)
                 c = res.counts()
                 counts = c if counts is None else {k: counts[k] + c[k] for k in c}
             for k, v in counts.items():
                 f.attrs[k] = v
+            snaps = acc.snapshots()
+            snaps.save(f.create_group("snapshots"))
+        counts["snapshots"] = len(snaps)
         return counts
 
 
@@ -361,15 +435,40 @@ def _run_one(log_path, out_path):
         return log_path, out_path, None, f"{type(e).__name__}: {e}"
 
 
-def output_path(log_path, outdir, csv: bool = False) -> str:
-    base = os.path.splitext(os.path.basename(os.fspath(log_path)))[0]
+def output_path(log_path, outdir, csv: bool = False, name: str | None = None) -> str:
+    """Results file of a log: ``outdir/<name without extension>.estimates.h5`` (``.csv``); ``name``
+    defaults to the log's file name and may hold sub-folders (``ESN001/flight_003.h5``)."""
+    base = os.path.splitext(os.fspath(name or os.path.basename(os.fspath(log_path))))[0]
     return os.path.join(os.fspath(outdir), base + (".estimates.csv" if csv else ".estimates.h5"))
 
 
+def result_names(log_paths, names=None) -> list[str]:
+    """Names of the results of ``log_paths`` relative to the output folder: ``names`` when given,
+    else the file names; logs of the same file name in different folders keep their folder
+    (``ESN1/flight_001.h5`` and ``ESN2/flight_001.h5``). Two logs that would still collide are an
+    error."""
+    logs = [os.fspath(p) for p in log_paths]
+    out = list(names) if names is not None else [os.path.basename(p) for p in logs]
+    if names is None:
+        seen: dict[str, int] = {}
+        for n in out:
+            seen[n] = seen.get(n, 0) + 1
+        out = [os.path.join(os.path.basename(os.path.dirname(os.path.abspath(p))), n) if seen[n] > 1 else n
+               for p, n in zip(logs, out)]
+    stems = [os.path.splitext(n)[0] for n in out]
+    if len(set(stems)) != len(stems):
+        dup = sorted({s for s in stems if stems.count(s) > 1})
+        raise ValueError(f"logs {dup[:3]} would write the same results file; give them distinct names "
+                         "or folders")
+    return out
+
+
 def run_many(db_path, log_paths, outdir, workers: int | None = None, csv: bool = False,
-             progress=None, online: bool = False, zones: bool = False):
+             progress=None, online: bool = False, zones: bool = False, names=None):
     """Estimate every log into ``outdir`` (one results file per log), in parallel processes
     (``online``, ``zones``: the full Kalman filter or the zone gains, as for :class:`Estimator`).
+    ``names``: results names relative to ``outdir`` (see :func:`result_names`; folder trees such as
+    a fleet's ``ESN001/flight_000.h5`` keep their sub-folders).
 
     Returns a list of (log, output, counts or None, error message or None) in input order; a log
     that fails is reported and the others still complete. ``progress(done, total, item)`` is
@@ -379,9 +478,7 @@ def run_many(db_path, log_paths, outdir, workers: int | None = None, csv: bool =
 
     os.makedirs(outdir, exist_ok=True)
     logs = [os.fspath(p) for p in log_paths]
-    outs = [output_path(p, outdir, csv) for p in logs]
-    if len(set(outs)) != len(outs):
-        raise ValueError("two logs have the same file name; their results would overwrite each other")
+    outs = [output_path(p, outdir, csv, n) for p, n in zip(logs, result_names(logs, names))]
     workers = max(1, min(len(logs), workers or os.cpu_count() or 1))
     results = []
     if workers == 1:

@@ -1,28 +1,34 @@
-"""Health trending: one health snapshot per flight, trends over an engine's life, fault flags.
+"""Health trending of one engine: per-flight health, trend lines, and the fleet diagnostics' verdict.
 
-A flight's snapshot is the median of the health estimates over its settled, unflagged samples
-(after ``settle`` seconds, flags == 0): robust to the filter's start-up transient and to short
-excursions. Over many flights, each health parameter gets a least-squares line (level and slope
-per flight with standard errors) and two kinds of flag:
+Two views of the same flights, in time order (``flight_time``, ``flight_index``, then file names
+in natural order, so flight_2 comes before flight_10):
 
-- ``step``: the newest snapshot departs from the line fitted to the flights before it by more than
-  ``step_sigma`` residual standard deviations and at least ``step_min`` (absolute);
-- ``limit``: the newest snapshot is below ``limit`` (health parameters are negative when degraded).
+- the Kalman filter's health estimates per flight (the mean over the flight's steady snapshot, or
+  :func:`health_summary` of a whole run) with a least-squares line per parameter (level at the
+  newest flight, slope per flight, standard error);
+- the diagnosis of :mod:`pwl.diagnose` for this engine alone (detection over the whole history,
+  isolation among components and sensors, size, drift rate): the tuner estimates are projections
+  of 10 health parameters and 8 sensors onto 7 tuners, so they show *that* the engine changed but
+  cannot by themselves say which component or sensor did; the diagnosis does.
+
+With one engine the flight-to-flight scatter comes from the engine's own flights (robust, with a
+floor), so the verdict is less sharp than in a fleet run (``pwl fleet diagnose``).
 """
 from __future__ import annotations
 
 import os
 from dataclasses import dataclass
 
-import h5py
 import numpy as np
 
-from .h5io import read_strings
+from .database import GainDatabase
+from .diagnose import (DiagnosisConfig, Decision, FlightRecord, diagnose_engine, engine_series,
+                       noise_covariance, prepare)
 
 
 @dataclass
-class Snapshot:
-    """Health of one flight: names (nh,), values (nh,) median estimates, spread (nh,) IQR/1.349."""
+class HealthSummary:
+    """Health of one run: names (nh,), values (nh,) median estimates, spread (nh,) IQR/1.349."""
 
     source: str
     names: list[str]
@@ -31,48 +37,20 @@ class Snapshot:
     samples: int
 
 
-def snapshot(time, h_hat, flags, names, source="<memory>", settle: float = 60.0) -> Snapshot:
-    """Snapshot from one flight's estimates: time (n,) s, h_hat (n, nh), flags (n,) int."""
+def health_summary(time, h_hat, flags, names, source="<memory>", settle: float = 60.0) -> HealthSummary:
+    """Median health estimates of one run: time (n,) s, h_hat (n, nh), flags (n,) int; samples
+    after ``settle`` s with flags == 0."""
     time, h_hat, flags = np.asarray(time), np.asarray(h_hat), np.asarray(flags)
     use = (time >= time[0] + settle) & (flags == 0) & np.all(np.isfinite(h_hat), axis=1)
     if not use.any():
         raise ValueError(f"{source}: no settled, unflagged samples after {settle:g} s to summarise")
     h = h_hat[use]
     q75, q50, q25 = np.percentile(h, [75, 50, 25], axis=0)
-    return Snapshot(os.fspath(source), list(names), q50, (q75 - q25) / 1.349, int(use.sum()))
+    return HealthSummary(os.fspath(source), list(names), q50, (q75 - q25) / 1.349, int(use.sum()))
 
 
-def snapshot_file(path, settle: float = 60.0) -> Snapshot:
-    """Snapshot from a results file written by ``pwl run``."""
-    with h5py.File(path, "r") as f:
-        if f.attrs.get("format") not in ("pwl-estimates", b"pwl-estimates"):
-            raise ValueError(f"{path}: not a pwl results file")
-        return snapshot(f["time"][()], f["h_hat"][()], f["flags"][()],
-                        read_strings(f["names/h_hat"]), path, settle)
-
-
-@dataclass
-class Trend:
-    """Per health parameter over flights 0..m-1: level at the newest flight, slope per flight,
-    their standard errors, and the flags raised (parameter name -> list of reasons)."""
-
-    names: list[str]
-    values: np.ndarray          # (m, nh) snapshots
-    level: np.ndarray           # (nh,)
-    slope: np.ndarray           # (nh,) per flight
-    slope_se: np.ndarray        # (nh,)
-    flags: dict[str, list[str]]
-
-    def table(self) -> str:
-        lines = [f"{'parameter':<10} {'latest':>9} {'level':>9} {'slope/flight':>13} {'+-':>9}  flags"]
-        for j, n in enumerate(self.names):
-            lines.append(f"{n:<10} {self.values[-1, j]:>9.4f} {self.level[j]:>9.4f} "
-                         f"{self.slope[j]:>13.2e} {self.slope_se[j]:>9.1e}  {', '.join(self.flags.get(n, []))}")
-        return "\n".join(lines)
-
-
-def _line(x, y):
-    """Least-squares y = a + b x; returns a, b, se(b), residual std (columns of y independently)."""
+def line(x, y):
+    """Least-squares y = a + b x per column of y: returns a, b, se(b), residual std."""
     X = np.column_stack([np.ones_like(x), x])
     coef, *_ = np.linalg.lstsq(X, y, rcond=None)
     r = y - X @ coef
@@ -83,34 +61,73 @@ def _line(x, y):
     return coef[0], coef[1], se, s
 
 
-def trend(snaps: list[Snapshot], step_sigma: float = 4.0, step_min: float = 0.005,
-          limit: float = -0.03) -> Trend:
-    """Trend and fault flags over flights in order (oldest first); needs >= 2 snapshots."""
-    if len(snaps) < 2:
-        raise ValueError("a trend needs at least two flights")
-    names = snaps[0].names
-    for s in snaps:
-        if s.names != names:
-            raise ValueError(f"{s.source}: health parameters {s.names} differ from {names}")
-    Y = np.array([s.values for s in snaps])
-    x = np.arange(len(snaps), dtype=np.float64)
-    a, b, se, _ = _line(x, Y)
-    flags: dict[str, list[str]] = {}
-    if len(snaps) >= 4:
-        a0, b0, _, s0 = _line(x[:-1], Y[:-1])
-        pred = a0 + b0 * x[-1]
-        dev = Y[-1] - pred
-        for j, n in enumerate(names):
-            if abs(dev[j]) > max(step_sigma * s0[j], step_min):
-                flags.setdefault(n, []).append(f"step {dev[j]:+.4f}")
-    for j, n in enumerate(names):
-        if Y[-1, j] < limit:
-            flags.setdefault(n, []).append(f"below {limit:g}")
-    return Trend(list(names), Y, a + b * x[-1], b, se, flags)
+@dataclass
+class EngineTrend:
+    """One engine over its flights: labels (n,), health H (n, nh) fractions (NaN without a
+    snapshot), per parameter level at the newest flight, slope per flight and its standard error,
+    and the diagnosis per flight."""
+
+    engine: str
+    labels: list[str]
+    names: list[str]
+    H: np.ndarray
+    level: np.ndarray
+    slope: np.ndarray
+    slope_se: np.ndarray
+    decisions: list[Decision]
+
+    @property
+    def latest(self) -> Decision:
+        return self.decisions[-1]
+
+    def table(self) -> str:
+        """Health in percent per flight, the trend lines and the verdict per flight."""
+        short = [n.replace("_eff", "_e").replace("_flow", "_w") for n in self.names]
+        lines = [f"engine {self.engine}: {len(self.labels)} flights (health estimates in %)",
+                 f"{'flight':<14}" + "".join(f"{s:>8}" for s in short) + "  diagnosis"]
+        for i, lab in enumerate(self.labels):
+            d = self.decisions[i]
+            verdict = (f"{d.cls} {d.kind} since flight {d.onset}: {d.detail}" if d.detected else d.status)
+            lines.append(f"{lab[:14]:<14}" + "".join(f"{100 * v:>8.2f}" for v in self.H[i]) + f"  {verdict}")
+        lines.append(f"{'level':<14}" + "".join(f"{100 * v:>8.2f}" for v in self.level))
+        lines.append(f"{'slope/flight':<14}" + "".join(f"{100 * v:>8.3f}" for v in self.slope))
+        lines.append(f"{'  +-':<14}" + "".join(f"{100 * v:>8.3f}" for v in self.slope_se))
+        d = self.latest
+        if d.detected:
+            size = (f"{'rate' if d.kind == 'drift' else 'size'} {100 * d.magnitude:+.2f} "
+                    f"+- {100 * d.magnitude_std:.2f} %{'/flight' if d.kind == 'drift' else ''}")
+            if np.isfinite(d.bias):
+                size += f", bias {d.bias:+.4g} (sensor units)"
+            lines.append(f"FAULT: {d.cls} ({d.kind} since flight {d.onset}), {size}, confidence "
+                         f"{d.confidence:.2f} (next: {d.runner_up}); {d.detail}")
+        else:
+            lines.append(f"no fault detected (p = {d.p_value:.3g})" if np.isfinite(d.p_value) else
+                         f"no fault detected ({d.status})")
+        return "\n".join(lines)
 
 
-def plot_trend(tr: Trend, path, truth: np.ndarray | None = None) -> None:
-    """PNG of every health parameter over flights (matplotlib, the ``plot`` extra)."""
+def engine_trend(records: list[FlightRecord], db: GainDatabase,
+                 cfg: DiagnosisConfig = DiagnosisConfig()) -> EngineTrend:
+    """Trend and diagnosis of one engine's flights (any order: they are sorted by time)."""
+    sig, centers = prepare(records, db)
+    es = engine_series(records, sig, len(centers))
+    Sigma = noise_covariance([es], cfg.floor)
+    dec = diagnose_engine(es, Sigma, cfg)
+    H = es.h_hat
+    ok = np.all(np.isfinite(H), axis=1)
+    x = np.flatnonzero(ok).astype(float)
+    nh = H.shape[1]
+    if x.size >= 2:
+        a, b, se, _ = line(x, H[ok])
+        level = a + b * (H.shape[0] - 1)
+    else:
+        level, b, se = (H[ok][-1] if x.size else np.full(nh, np.nan)), np.full(nh, np.nan), np.full(nh, np.nan)
+    return EngineTrend(es.engine, [f.label for f in es.flights], es.h_names, H, level, b, se, dec)
+
+
+def plot_trend(tr: EngineTrend, path, truth: np.ndarray | None = None) -> None:
+    """PNG of every health estimate (%) over flights with its trend line and the detected fault
+    (matplotlib, the ``plot`` extra)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -118,21 +135,33 @@ def plot_trend(tr: Trend, path, truth: np.ndarray | None = None) -> None:
     nh = len(tr.names)
     cols = min(nh, 5)
     rows = (nh + cols - 1) // cols
-    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.6 * rows), squeeze=False)
-    x = np.arange(tr.values.shape[0])
+    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.6 * rows + 0.5), squeeze=False)
+    x = np.arange(tr.H.shape[0])
+    d = tr.latest
+    flagged = set()
+    if d.detected:
+        for part in d.cls.split("+"):
+            flagged |= {n for n in tr.names if n.startswith(part + "_") or n == part}
     for j, n in enumerate(tr.names):
         ax = axes[j // cols][j % cols]
-        ax.plot(x, 100 * tr.values[:, j], "o-", ms=3, label="estimate")
+        ax.plot(x, 100 * tr.H[:, j], "o", ms=3, label="estimate")
+        if np.isfinite(tr.slope[j]):
+            ax.plot(x, 100 * (tr.level[j] + tr.slope[j] * (x - x[-1])), "-", lw=1, color="C1",
+                    label=f"trend {100 * tr.slope[j]:+.3f} %/flight")
         if truth is not None:
             ax.plot(x, 100 * truth[:, j], "k--", lw=1, label="truth")
-        ax.set_title(n + ("  [" + "; ".join(tr.flags[n]) + "]" if n in tr.flags else ""), fontsize=8,
-                     color="red" if n in tr.flags else "black")
+        if d.detected and d.onset >= 0:
+            ax.axvline(d.onset - 0.5, color="red", lw=0.8, ls=":")
+        ax.set_title(n, fontsize=8, color="red" if n in flagged else "black")
         ax.set_xlabel("flight")
-        ax.set_ylabel("%")
+        ax.set_ylabel("health estimate, %")
         ax.grid(alpha=0.3)
+        ax.legend(fontsize=6, loc="lower left")
     for j in range(nh, rows * cols):
         axes[j // cols][j % cols].axis("off")
-    axes[0][0].legend(fontsize=7)
+    title = (f"engine {tr.engine}: {d.cls} {d.kind} from flight {d.onset} ({d.detail})" if d.detected
+             else f"engine {tr.engine}: no fault detected")
+    fig.suptitle(title, fontsize=9, color="red" if d.detected else "black")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

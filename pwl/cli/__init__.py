@@ -18,6 +18,7 @@ COMMANDS = {
     "run": "pwl.cli.run",
     "demo": "pwl.cli.demo",
     "trend": "pwl.cli.trend",
+    "fleet": "pwl.cli.fleet",
     "tables": "pwl.cli.tables",
     "zones": "pwl.cli.zones",
     "bias": "pwl.cli.bias",

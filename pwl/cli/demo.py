@@ -46,7 +46,7 @@ def run(args) -> int:
     from ..bench import demo_paths
     from ..estimator import Estimator
     from ..logs import read_log
-    from ..trending import snapshot
+    from ..trending import health_summary
 
     d_db, d_logs = demo_paths()
     db_path = args.database or d_db
@@ -79,7 +79,7 @@ def run(args) -> int:
                     eu = errors(ru.channel("z_hat", ch), log.truth[ch], mask)
                     et = errors(rt.channel("z_hat", ch), log.truth[ch], mask)
                     rows.append((name, ch, label, eu, et))
-        snap = snapshot(rt.time, rt.h_hat, rt.flags, tuned.names["h_hat"], path, args.settle)
+        snap = health_summary(rt.time, rt.h_hat, rt.flags, tuned.names["h_hat"], path, args.settle)
         truth_h = np.array([np.mean(log.truth[h]) if h in log.truth else np.nan for h in snap.names])
         health_rows.append((name, snap, truth_h))
         n = len(log)

@@ -21,20 +21,29 @@ def add_arguments(p):
                         "DB --out ZONED.h5) instead of interpolating it")
 
 
-def expand(paths):
-    """Files as given; in folders every .csv/.parquet and every HDF5 file that is a flight log
-    (other HDF5 files there, e.g. a gain database or results, are skipped with a note)."""
+def expand(paths, with_names: bool = False):
+    """Files as given; in folders (walked recursively, e.g. a fleet's ENGINE/flight.h5 tree) every
+    .csv/.parquet and every HDF5 file that is a flight log (other HDF5 files there, e.g. a gain
+    database or results, are skipped with a note). ``with_names``: also return each log's results
+    name (its path relative to the folder given, the file name for files given directly)."""
     from ..h5io import attr_str
     from ..logs import FORMAT
 
     import h5py
 
-    out = []
+    out, names = [], []
     for p in paths:
         if not os.path.isdir(p):
             out.append(p)
+            names.append(os.path.basename(p))
             continue
-        for f in sorted(f for ext in ("h5", "hdf5", "csv", "parquet") for f in glob.glob(os.path.join(p, f"*.{ext}"))):
+        found = []
+        for folder, dirs, files in os.walk(p):
+            dirs.sort()
+            found += [os.path.join(folder, f) for f in files
+                      if f.lower().endswith((".h5", ".hdf5", ".csv", ".parquet"))
+                      and not f.startswith(".") and ".estimates." not in f]
+        for f in sorted(found):
             if f.lower().endswith((".h5", ".hdf5")):
                 try:
                     with h5py.File(f, "r") as h:
@@ -44,8 +53,11 @@ def expand(paths):
                 if fmt != FORMAT:
                     print(f"pwl run: skipping {f} (not a flight log: format {fmt!r})", file=sys.stderr)
                     continue
+            elif os.path.basename(f) in ("truth.csv", "diagnosis.csv", "summary.csv"):
+                continue
             out.append(f)
-    return out
+            names.append(os.path.relpath(f, p))
+    return (out, names) if with_names else out
 
 
 def run(args) -> int:
@@ -58,7 +70,7 @@ def run(args) -> int:
     except ValueError as e:
         print(f"pwl run: {e}", file=sys.stderr)
         return 2
-    logs = expand(args.logs)
+    logs, names = expand(args.logs, with_names=True)
     if not logs:
         print("pwl run: no logs found", file=sys.stderr)
         return 2
@@ -71,8 +83,16 @@ def run(args) -> int:
             f"{counts['trim_outside']} outside the grid -> {out}")
         print(f"[{done}/{total}] {log}: {status}", file=sys.stderr, flush=True)
 
+    from ..estimator import result_names
+    if len(set(names)) != len(names):       # files given directly with the same name
+        names = None
+    try:
+        result_names(logs, names)
+    except ValueError as e:
+        print(f"pwl run: {e}", file=sys.stderr)
+        return 2
     results = run_many(args.database, logs, args.outdir, args.workers, args.csv, progress, online=args.online,
-                       zones=args.zones)
+                       zones=args.zones, names=names)
     failed = [r for r in results if r[3]]
     n = sum(r[2]["samples"] for r in results if r[2])
     dt = time.perf_counter() - t0

@@ -1,22 +1,41 @@
-"""pwl trend RESULTS...: health snapshots per flight, trends and fault flags over an engine's life."""
-HELP = "health trends and fault flags over flights (results files of pwl run, oldest first)"
+"""pwl trend RESULTS...: one engine's health over its flights, trend lines and the diagnosis."""
+HELP = ("health trends and fault diagnosis of one engine over its flights (results files of pwl run, "
+        "in any order: sorted by flight time); exit status 1 when a fault is detected at the latest flight")
 
 
 def add_arguments(p):
-    p.add_argument("results", nargs="+", help="results files (*.estimates.h5), oldest flight first")
-    p.add_argument("--settle", type=float, default=60.0, help="seconds ignored at the start of each flight")
-    p.add_argument("--limit", type=float, default=-0.03, help="flag health parameters below this")
-    p.add_argument("--plot", help="write a PNG of the trends (needs matplotlib)")
+    p.add_argument("results", nargs="+", help="results files (*.estimates.h5) or folders of one engine")
+    p.add_argument("--database", help="gain database (default: the one recorded in the results)")
+    p.add_argument("--plot", help="write a PNG of the health trends (needs matplotlib)")
 
 
 def run(args) -> int:
-    from ..trending import plot_trend, snapshot_file, trend
+    import sys
 
-    snaps = [snapshot_file(p, args.settle) for p in args.results]
-    tr = trend(snaps, limit=args.limit)
-    print(f"{len(snaps)} flights")
-    print(tr.table())
-    if args.plot:
-        plot_trend(tr, args.plot)
-        print(f"plot: {args.plot}")
-    return 1 if tr.flags else 0
+    from ..database import GainDatabase
+    from ..diagnose import group_engines, read_flight
+    from ..trending import engine_trend, plot_trend
+    from .fleet import results_files
+    from .output import plot_or_note
+
+    records = [read_flight(f) for f in results_files(args.results)]
+    if len(records) < 2:
+        print("pwl trend: a trend needs at least two flights", file=sys.stderr)
+        return 2
+    dbs = sorted({r.database for r in records if r.database})
+    db_path = args.database or (dbs[0] if len(dbs) == 1 else None)
+    if db_path is None:
+        print("pwl trend: " + ("the results name several databases: " + ", ".join(dbs) if dbs else
+              "the results do not name their database") + "; give --database", file=sys.stderr)
+        return 2
+    db = GainDatabase.open(db_path)
+    engines = group_engines(records)
+    status = 0
+    for i, (eng, recs) in enumerate(engines.items()):
+        tr = engine_trend(recs, db)
+        print(("\n" if i else "") + tr.table())
+        if args.plot:
+            path = args.plot if len(engines) == 1 else args.plot.replace(".png", f"_{eng}.png")
+            plot_or_note(plot_trend, path, tr)
+        status |= int(tr.latest.detected)
+    return status

@@ -492,7 +492,7 @@ def compare_database(db_path, logs, k: int = 3, seed: int = 0, settle: float = 1
     from ..ekf import ZoneTable
     from ..estimator import Estimator
     from ..logs import read_log
-    from ..trending import snapshot
+    from ..trending import health_summary
     from .demo import errors
 
     db = GainDatabase.open(db_path)
@@ -540,7 +540,7 @@ def compare_database(db_path, logs, k: int = 3, seed: int = 0, settle: float = 1
             names = db.names["h"]
             if names and any(h in log.truth for h in names):
                 tr = np.array([np.mean(log.truth[h]) if h in log.truth else np.nan for h in names])
-                health.append((name, list(names), {f: snapshot(r.time, r.h_hat, r.flags, names, path,
+                health.append((name, list(names), {f: health_summary(r.time, r.h_hat, r.flags, names, path,
                                                                settle).values for f, r in res.items()}, tr))
         speed = filter_speed(ests, read_log(logs[0]))
         lines.append(f"\nestimation error, % of truth after the first {settle:g} s (RMS / mean); "

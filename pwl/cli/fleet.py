@@ -1,0 +1,126 @@
+"""pwl fleet simulate|diagnose|score: a ProDiMES-style fleet benchmark of the diagnostics.
+
+  pwl fleet simulate --engines 100 --flights 20 --seed 0 -o FLEET/   # logs + FLEET/truth.csv
+  pwl run data/turbofan_demo.h5 FLEET/ -o RESULTS/                    # estimates + snapshots
+  pwl fleet diagnose RESULTS/ -o diagnosis.csv                        # detect, isolate, size
+  pwl fleet score diagnosis.csv FLEET/truth.csv --json                # TPR, FPR, kappa, ...
+"""
+import glob
+import json
+import os
+import sys
+
+HELP = "fleet benchmark: simulate a fleet with faults, diagnose it, score a diagnosis"
+
+
+def add_arguments(p):
+    sub = p.add_subparsers(dest="fleet_command", metavar="STEP")
+    sub.required = True
+    from .fleet_simulate import add_simulate_arguments, run_simulate
+    s = sub.add_parser("simulate", help="simulate N engines x M flights with faults (logs and truth.csv)",
+                       description="simulate N engines x M flights with faults (logs and truth.csv)")
+    add_simulate_arguments(s)
+    s.set_defaults(_step=run_simulate)
+
+    d = sub.add_parser("diagnose", help="detect, isolate and size faults from pwl run results",
+                       description="detect, isolate and size faults from pwl run results, one row per "
+                                   "engine and flight (docs/diagnostics.md)")
+    d.add_argument("results", nargs="+", help="results files or folders (walked recursively) of pwl run")
+    d.add_argument("-o", "--output", default="diagnosis.csv", help="CSV to write (default diagnosis.csv)")
+    d.add_argument("--database", help="gain database (default: the one recorded in the results)")
+    d.add_argument("--alpha", type=float, default=None,
+                   help="false-alarm probability per engine and flight (default 1e-3)")
+    d.add_argument("--kappa", type=float, default=None,
+                   help="isolation cost per free parameter of a hypothesis (default 6)")
+    d.add_argument("--no-pairs", action="store_true", help="do not test two-component changes")
+    d.set_defaults(_step=run_diagnose)
+
+    c = sub.add_parser("score", help="score a diagnosis CSV against a fleet's truth.csv",
+                       description="ProDiMES-style metrics of a diagnosis (any method writing the "
+                                   "diagnosis.csv columns engine, flight, detected, class)")
+    c.add_argument("diagnosis", help="diagnosis CSV (pwl fleet diagnose, or another method's)")
+    c.add_argument("truth", help="truth.csv of the fleet (pwl fleet simulate)")
+    c.add_argument("--json", action="store_true", help="print the metrics as JSON")
+    c.add_argument("--plot", help="write the confusion matrix as PNG (needs matplotlib)")
+    c.add_argument("--min-component", type=float, default=0.0,
+                   help="detectability magnitude of component faults, |efficiency change| (default 0: all)")
+    c.add_argument("--min-sensor-sigma", type=float, default=0.0,
+                   help="detectability magnitude of sensor biases, noise sigmas (default 0: all)")
+    c.set_defaults(_step=run_score)
+
+
+def run(args) -> int:
+    return args._step(args)
+
+
+def results_files(paths) -> list[str]:
+    out = []
+    for p in paths:
+        if os.path.isdir(p):
+            out += sorted(glob.glob(os.path.join(p, "**", "*.estimates.h5"), recursive=True))
+        else:
+            out.append(p)
+    return out
+
+
+def run_diagnose(args) -> int:
+    from dataclasses import replace
+
+    import numpy as np
+
+    from ..database import GainDatabase
+    from ..diagnose import DiagnosisConfig, diagnose_fleet, read_flight, write_diagnosis
+
+    files = results_files(args.results)
+    if not files:
+        print("pwl fleet diagnose: no results files (*.estimates.h5) found", file=sys.stderr)
+        return 2
+    records = [read_flight(f) for f in files]
+    dbs = sorted({r.database for r in records if r.database})
+    db_path = args.database or (dbs[0] if len(dbs) == 1 else None)
+    if db_path is None:
+        print("pwl fleet diagnose: " + ("the results name several databases " + ", ".join(dbs) if dbs else
+              "the results do not name their database") + "; give --database", file=sys.stderr)
+        return 2
+    cfg = DiagnosisConfig()
+    if args.alpha is not None:
+        cfg = replace(cfg, alpha=args.alpha)
+    if args.kappa is not None:
+        cfg = replace(cfg, kappa=args.kappa)
+    if args.no_pairs:
+        cfg = replace(cfg, pairs=False)
+    db = GainDatabase.open(db_path)
+    rows, Sigma, channels, centers = diagnose_fleet(records, db, cfg)
+    write_diagnosis(rows, args.output)
+    engines = sorted({r.engine for r in rows})
+    flagged = {}
+    for r in rows:
+        if r.detected:
+            flagged[r.engine] = r
+    print(f"{len(engines)} engines, {len(rows)} flights -> {args.output}")
+    for j, c in enumerate(centers):
+        print(f"  regime {j}: steady near " + ", ".join(f"{n} {v:.4g}" for n, v in zip(db.names["p"], c)))
+    print("flight-to-flight scatter of the snapshot deviations (1 sigma, %): " +
+          ", ".join(f"{c} {100 * s:.3f}" for c, s in zip(channels, np.sqrt(np.diag(Sigma)))))
+    nosnap = sum(r.status == "no steady snapshot" for r in rows)
+    if nosnap:
+        print(f"{nosnap} flights without a steady snapshot (not diagnosed)")
+    print(f"{len(flagged)} engines with a fault at their latest flight:")
+    for e, r in flagged.items():
+        what = f"{r.kind} {r.detail}" + (f" (bias {r.bias:+.4g})" if np.isfinite(r.bias) else "")
+        print(f"  {e}: {r.cls} from flight {r.onset}, {what}, confidence {r.confidence:.2f}")
+    return 0
+
+
+def run_score(args) -> int:
+    from ..scoring import plot_confusion, score, table
+    from .output import plot_or_note
+
+    res = score(args.diagnosis, args.truth, args.min_component, args.min_sensor_sigma)
+    if args.json:
+        print(json.dumps(res, indent=2))
+    else:
+        print(table(res))
+    if args.plot:
+        plot_or_note(plot_confusion, args.plot, res)
+    return 0

@@ -1,0 +1,482 @@
+"""Fleet gas-path diagnostics: detect, isolate and size a fault from per-flight steady snapshots.
+
+Per engine, every flight's longest steady snapshot (:mod:`pwl.snapshots`) is reduced to relative
+deviations d from the trim at its measured operating point, with signature columns S for every
+health parameter and sensor bias (:mod:`pwl.signatures`). Over the flights 0..k seen so far:
+
+    d_j = a + f_j(tau) S_c theta + e_j,     e_j ~ N(0, Sigma)
+
+with a the engine's own level (engine-to-engine scatter and model offset, never needed), f the
+shape of the change (a step 1[j >= tau], or a ramp max(0, j - tau + 1) for a drift), c one
+hypothesis of a fixed bank (one component's efficiency and flow; two components; one sensor or
+the fuel-flow measurement) and theta its size. After whitening with Sigma and projecting out
+the level, the generalised likelihood ratio of hypothesis c at change point tau is
+T_c = |P_c v|^2 with v the whitened change estimate: chi-square with rank(c) degrees of freedom
+when nothing changed.
+
+- **Detection** at flight k: the smallest chi-square p-value over all change points, shapes and
+  hypotheses, times their number (Bonferroni), below ``alpha``; and a change of at least
+  ``min_step`` (relative deviation, norm over channels) so that tiny but significant model
+  effects do not flag. Recomputed on the whole history each flight: a persistent fault stays
+  flagged.
+- **Isolation**: the hypothesis and change point maximising T_c - kappa * rank(c) (a fixed cost
+  per free parameter, so a sensor bias is not read as a two-parameter component change that fits
+  it equally well); confidence = its share of exp((T - kappa * rank) / 2) over the bank.
+- **Sizing**: theta with its standard error from the same least squares.
+- **Drift**: a ramp that wins is reported as kind ``drift`` with its rate per flight.
+
+Sigma, the flight-to-flight scatter of a snapshot's deviations (sensor noise averaged over the
+window plus the model's interpolation error at changing conditions), is estimated from the data:
+for a fleet, robustly from successive flight differences pooled over engines (big changes are
+trimmed); for one engine from its own differences, with a floor. docs/diagnostics.md gives the
+equations, the false-alarm design and the benchmark.
+"""
+from __future__ import annotations
+
+import csv
+import os
+import re
+from dataclasses import dataclass, field
+
+import h5py
+import numpy as np
+from scipy import stats
+
+from .database import GainDatabase
+from .h5io import attr_str
+from .signatures import DiagnosisError, Signatures
+from .snapshots import Snapshots
+
+
+@dataclass(frozen=True)
+class DiagnosisConfig:
+    """Settings of the detector (documented in docs/diagnostics.md).
+
+    alpha: family-wise false-alarm probability per engine and flight; kappa: cost per free
+    parameter in isolation; n_base: fault-free flights needed before a step can be tested;
+    min_step: smallest change reported (norm of the relative deviation change); min_rate: smallest
+    drift reported (per flight, same norm); floor: smallest flight-to-flight scatter assumed per
+    channel (relative); eps: relative uncertainty of the signatures; pairs: also test
+    two-component changes, at an extra cost ``pair_cost`` (a combined fault is rarer than a single one)."""
+
+    alpha: float = 1e-3
+    kappa: float = 6.0
+    n_base: int = 3
+    min_step: float = 0.002
+    min_rate: float = 0.0004
+    floor: float = 2e-4
+    eps: float = 0.1
+    pairs: bool = True
+    pair_cost: float = 6.0
+
+
+@dataclass
+class Hypothesis:
+    name: str
+    columns: list[int]
+
+    def cost(self, cfg: "DiagnosisConfig") -> float:
+        """Isolation cost: kappa per free parameter, plus pair_cost for a two-component change."""
+        return cfg.kappa * len(self.columns) + (cfg.pair_cost if "+" in self.name else 0.0)
+
+
+def hypotheses(columns: list[str], pairs: bool = True) -> list[Hypothesis]:
+    """The bank: one component (all its health parameters, grouped by the name before the last
+    ``_``: fan_eff, fan_flow -> fan), every pair of components, every sensor bias."""
+    comps: dict[str, list[int]] = {}
+    out = []
+    for j, c in enumerate(columns):
+        if c.startswith("sensor:"):
+            out.append(Hypothesis(c, [j]))
+        else:
+            comps.setdefault(c.rsplit("_", 1)[0] if "_" in c else c, []).append(j)
+    bank = [Hypothesis(k, v) for k, v in comps.items()]
+    if pairs:
+        keys = list(comps)
+        bank += [Hypothesis(f"{a}+{b}", comps[a] + comps[b]) for i, a in enumerate(keys) for b in keys[i + 1:]]
+    return bank + out
+
+
+# ---- reading results ----------------------------------------------------------------------------
+@dataclass
+class FlightRecord:
+    """One flight of one engine: where it came from, its order key and its chosen snapshot."""
+
+    engine: str
+    order: tuple
+    source: str
+    label: str
+    snapshot: Snapshots
+    database: str | None = None
+    windows: dict = field(default_factory=dict)     # regime -> window index (assign_regimes)
+
+
+def _natural(s: str):
+    return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", s)]
+
+
+def read_flight(path) -> FlightRecord:
+    """The engine serial, flight order and longest steady snapshot of a ``pwl run`` results file.
+
+    Engine: the ``engine`` attribute (from the log), else the results file's folder name. Order:
+    ``flight_time``, then ``flight_index``, then the file name in natural order (flight_2 before
+    flight_10)."""
+    path = os.fspath(path)
+    try:
+        with h5py.File(path, "r") as f:
+            if attr_str(f, "format") != "pwl-estimates":
+                raise DiagnosisError(f"{path}: not a pwl results file")
+            if "snapshots" not in f:
+                raise DiagnosisError(f"{path}: has no /snapshots (results of an older pwl run: run it again)")
+            snaps = Snapshots.load(f["snapshots"])
+            engine = attr_str(f, "engine") or os.path.basename(os.path.dirname(os.path.abspath(path)))
+            ftime = attr_str(f, "flight_time") or ""
+            fidx = f.attrs.get("flight_index", -1)
+            db = attr_str(f, "database")
+    except OSError as e:
+        raise DiagnosisError(f"{path}: unreadable results file ({e})") from None
+    name = os.path.basename(path)
+    label = name.split(".estimates")[0]
+    return FlightRecord(str(engine), (str(ftime), int(fidx), _natural(name)), path, label, snaps, db)
+
+
+def assign_regimes(records: list[FlightRecord], spans, radius: float = 0.35, min_share: float = 0.3) -> np.ndarray:
+    """Group the steady windows of all flights into operating regimes (e.g. ground idle, cruise).
+
+    Operating points are scaled by ``spans`` (np,); windows are taken longest first and join the
+    nearest regime within ``radius`` (scaled distance) or start a new one. Regimes seen in fewer
+    than ``min_share`` of the flights are dropped. Sets each record's ``windows`` (regime ->
+    its longest window there) and returns the regime centres (R, np), lowest power first."""
+    spans = np.asarray(spans, dtype=np.float64)
+    wins = [(int(s), i, w) for i, r in enumerate(records) for w, s in enumerate(r.snapshot.samples)]
+    wins.sort(key=lambda x: -x[0])
+    centers, members = [], []
+    for _, i, w in wins:
+        q = records[i].snapshot.p[w] / spans
+        if not np.all(np.isfinite(q)):
+            continue
+        dist = [np.linalg.norm(q - c) for c in centers]
+        j = int(np.argmin(dist)) if dist else -1
+        if j < 0 or dist[j] > radius:
+            centers.append(q)
+            members.append([])
+            j = len(centers) - 1
+        members[j].append((i, w))
+    keep = [j for j in range(len(centers)) if len({i for i, _ in members[j]}) >= min_share * len(records)]
+    keep.sort(key=lambda j: float(np.sum(centers[j])))
+    for r in records:
+        r.windows = {}
+    for new, j in enumerate(keep):
+        for i, w in members[j]:          # longest first, so the first one seen per flight stays
+            records[i].windows.setdefault(new, w)
+    return np.array([centers[j] * spans for j in keep]).reshape(len(keep), spans.size)
+
+
+# ---- one engine --------------------------------------------------------------------------------
+@dataclass
+class EngineSeries:
+    """Deviations of one engine's flights in time order, regimes stacked: D (n, m R), SE (n, m R),
+    S (n, m R, ncol) with channel names ``<channel>@<regime>``; level (n, ncol) raw-unit channel
+    levels and h_hat (n, nh) filter health estimates, both at each flight's longest window."""
+
+    engine: str
+    flights: list[FlightRecord]
+    channels: list[str]
+    columns: list[str]
+    D: np.ndarray
+    SE: np.ndarray
+    S: np.ndarray
+    level: np.ndarray
+    h_hat: np.ndarray
+    h_names: list[str]
+    input_names: list[str] = field(default_factory=list)
+
+
+def engine_series(flights: list[FlightRecord], sig: Signatures, n_regimes: int) -> EngineSeries:
+    """Deviations of every flight and regime (NaN where a flight has no window in a regime)."""
+    flights = sorted(flights, key=lambda r: r.order)
+    m, ncol, R = len(sig.channels), len(sig.columns), n_regimes
+    n = len(flights)
+    D, SE = np.full((n, m * R), np.nan), np.full((n, m * R), np.nan)
+    S, level = np.full((n, m * R, ncol), np.nan), np.full((n, ncol), np.nan)
+    H = np.full((n, sig.db.n("h")), np.nan)
+    for i, r in enumerate(flights):
+        s = r.snapshot
+        longest = -1
+        for reg, w in r.windows.items():
+            try:
+                dev = sig.at(dict(zip(s.channels, s.mean[w])), dict(zip(s.channels, s.se[w])))
+            except KeyError as e:
+                raise DiagnosisError(f"{r.source}: snapshot lacks channel {e} the database needs") from None
+            cols = slice(reg * m, (reg + 1) * m)
+            D[i, cols], SE[i, cols], S[i, cols] = dev.d, dev.se, dev.S
+            if longest < 0 or s.samples[w] > s.samples[longest]:
+                longest = w
+                level[i] = dev.level
+        if longest >= 0 and "h_hat" in s.outputs:
+            H[i] = s.outputs["h_hat"][longest]
+    names = [f"{c}@{reg}" for reg in range(R) for c in sig.channels]
+    return EngineSeries(flights[0].engine if flights else "", flights, names, list(sig.columns),
+                        D, SE, S, level, H, list(sig.db.names["h"]), list(sig.db.names["u"]))
+
+
+def noise_covariance(series: list[EngineSeries], floor: float) -> np.ndarray:
+    """Flight-to-flight scatter Sigma (m, m) of the deviations.
+
+    Successive differences of each engine's flights (the engine's own level cancels) pooled over
+    the fleet: Cov(d_k - d_k-1) = 2 Sigma. Differences that hold an abrupt change are trimmed in
+    three passes (squared Mahalanobis distance beyond the chi-square 99.9 % point). With fewer
+    than 4 m complete differences the estimate is diagonal (median absolute deviation). Every
+    channel's variance is at least floor^2 plus its median snapshot standard error squared."""
+    m = series[0].D.shape[1]
+    diffs = []
+    ses = []
+    for s in series:
+        ok = np.all(np.isfinite(s.D), axis=1)
+        Dk = s.D[ok]
+        if Dk.shape[0] >= 2:
+            diffs.append(np.diff(Dk, axis=0))
+        ses.append(s.SE[ok])
+    X = np.concatenate(diffs) if diffs else np.zeros((0, m))
+    se = np.concatenate(ses) if ses else np.zeros((0, m))
+    base = floor ** 2 + (np.nanmedian(se, axis=0) ** 2 if se.size and np.isfinite(se).any() else 0.0)
+    base = np.nan_to_num(base, nan=floor ** 2)
+    if X.shape[0] >= 4 * m:
+        keep = np.ones(X.shape[0], bool)
+        cut = stats.chi2.ppf(0.999, m)
+        for _ in range(3):
+            C = np.cov(X[keep].T, bias=False) / 2.0 + np.diag(base) * 1e-9
+            Ci = np.linalg.inv(2.0 * C)
+            md = np.einsum("ij,jk,ik->i", X, Ci, X)
+            keep = md < cut
+        C = np.cov(X[keep].T) / 2.0
+        C = C / 0.99   # trimming at the 99.9 % point shrinks the estimate slightly
+    elif X.shape[0] >= 2:
+        mad = np.median(np.abs(X - np.median(X, axis=0)), axis=0) * 1.4826
+        C = np.diag(mad ** 2 / 2.0)
+    else:
+        C = np.zeros((m, m))
+    d = np.diag(C).copy()
+    up = np.maximum(d, base)
+    scale = np.sqrt(up / np.maximum(d, 1e-300))
+    C = C * np.outer(scale, scale)
+    np.fill_diagonal(C, up)
+    return C
+
+
+@dataclass
+class Decision:
+    """The diagnosis of one engine at one flight (one row of ``diagnosis.csv``)."""
+
+    engine: str
+    flight: int
+    label: str
+    source: str
+    status: str
+    detected: int = 0
+    cls: str = "none"
+    kind: str = ""
+    onset: int = -1
+    magnitude: float = float("nan")
+    magnitude_std: float = float("nan")
+    bias: float = float("nan")
+    confidence: float = float("nan")
+    runner_up: str = ""
+    p_value: float = float("nan")
+    statistic: float = float("nan")
+    detail: str = ""
+    missing: str = ""
+    h_hat: dict = field(default_factory=dict)
+
+
+CSV_FIELDS = ("engine", "flight", "label", "status", "detected", "class", "kind", "onset", "magnitude",
+              "magnitude_std", "bias", "confidence", "runner_up", "p_value", "statistic", "detail",
+              "missing", "source")
+
+
+def _fit_changes(D, Wt, S, t, taus, shape, bank, eps):
+    """For each change point tau and hypothesis: statistic, estimate, its covariance.
+
+    D (n, m) deviations at flights t (n,), Wt (m, m) whitening (Wt @ d ~ N(0, I)), S (m, ncol)
+    signatures. The signatures are uncertain by a fraction ``eps`` of the change they describe
+    (linearisation at the database's nodes, fault sizes beyond the linear range), so the
+    covariance of the change estimate grows by (eps * change)^2 per channel, the change being
+    the observed one (common to every hypothesis, which keeps their statistics comparable).
+    Returns a list of (tau, hypothesis index, T, theta, cov, g2)."""
+    out = []
+    n = t.size
+    for tau in taus:
+        f = (t >= tau).astype(float) if shape == "step" else np.maximum(0.0, t - tau + 1.0)
+        g = f - f.mean()                       # the engine's level projected out
+        g2 = float(g @ g)
+        if g2 < 1e-9 or n < 2:
+            continue
+        delta = D.T @ g / g2                   # the observed change (per unit of f), relative
+        Cw = np.eye(D.shape[1]) / g2 + (Wt * (eps * delta) ** 2) @ Wt.T
+        Lw = np.linalg.cholesky(Cw)
+        v = np.linalg.solve(Lw, Wt @ delta)    # whitened change estimate, N(0, I) if none
+        Sw = np.linalg.solve(Lw, Wt @ S)
+        for hi, h in enumerate(bank):
+            A = Sw[:, h.columns]
+            try:
+                Gi = np.linalg.inv(A.T @ A)
+            except np.linalg.LinAlgError:
+                continue
+            th = Gi @ (A.T @ v)
+            out.append((tau, hi, float(v @ A @ th), th, Gi, g2))
+    return out
+
+
+def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = DiagnosisConfig()) -> list[Decision]:
+    """Causal diagnosis of one engine: one :class:`Decision` per flight, using flights 0..k."""
+    n, m = es.D.shape
+    bank_all = hypotheses(es.columns, cfg.pairs)
+    rows = []
+    present = np.isfinite(es.D)
+    for k in range(n):
+        r = es.flights[k]
+        dec = Decision(es.engine, k, r.label, r.source, "ok",
+                       h_hat=dict(zip(es.h_names, es.h_hat[k])) if np.isfinite(es.h_hat[k]).all() else {})
+        if not present[k].any():
+            dec.status = "no steady snapshot"
+            rows.append(dec)
+            continue
+        # channels with data on this flight and on most earlier flights; flights lacking one are skipped
+        upto = present[: k + 1]
+        keep = present[k] & (upto.mean(axis=0) >= 0.5)
+        lost = dict.fromkeys(es.channels[j].split("@")[0] for j in range(m) if not present[k, j])
+        dec.missing = " ".join(lost)
+        rowsok = np.flatnonzero(np.all(upto[:, keep], axis=1))
+        if rowsok.size < cfg.n_base + 1:
+            dec.status = "baseline"
+            rows.append(dec)
+            continue
+        idx = np.flatnonzero(keep)
+        D = es.D[rowsok][:, idx]
+        Sbar_all = np.nanmean(es.S[rowsok], axis=0)[idx]
+        Sig = Sigma[np.ix_(idx, idx)]
+        Wt = np.linalg.inv(np.linalg.cholesky(Sig))
+        # hypotheses testable with these channels (a bias of a channel without data is not)
+        bank = [h for h in bank_all if np.linalg.norm(Sbar_all[:, h.columns], axis=0).min() > 1e-9]
+        t = rowsok.astype(float)
+        best, n_tests, fits_all = None, 0, {}
+        for shape in ("step", "ramp"):
+            lo = cfg.n_base if shape == "step" else 1
+            taus = t[lo:] if lo < t.size else []
+            # the signatures hardly move with the operating point: their mean over the flights is used
+            fits = _fit_changes(D, Wt, Sbar_all, t, taus, shape, bank, cfg.eps)
+            n_tests += len(taus) * len(bank)
+            for fit in fits:
+                tau, hi, T = fit[:3]
+                fits_all.setdefault((shape, tau), []).append(fit)
+                score = T - bank[hi].cost(cfg)
+                if best is None or score > best[0]:
+                    best = (score, shape) + fit
+        if best is None:
+            rows.append(dec)
+            continue
+        p_min = min(float(stats.chi2.sf(f[2], len(bank[f[1]].columns)))
+                    for v in fits_all.values() for f in v) * max(n_tests, 1)
+        score, shape, tau, hi, T, th, cov, g2 = best
+        h = bank[hi]
+        change = Sbar_all[:, h.columns] @ th       # fitted change (rate for ramps), relative
+        size = float(np.linalg.norm(change))
+        big = size >= (cfg.min_rate if shape == "ramp" else cfg.min_step)
+        if shape == "ramp":
+            big = big and size * (t[-1] - tau + 1) >= cfg.min_step
+        # confidence among the bank at the chosen change point and shape
+        here = fits_all[(shape, tau)]
+        sc = np.array([f[2] - bank[f[1]].cost(cfg) for f in here])
+        names = [bank[f[1]].name for f in here]
+        w = np.exp((sc - sc.max()) / 2.0)
+        w /= w.sum()
+        order = np.argsort(-w)
+        p = p_min
+        dec.p_value = min(p, 1.0)
+        dec.statistic = T
+        if p < cfg.alpha and big:
+            dec.detected = 1
+            dec.cls = h.name
+            dec.kind = "step" if shape == "step" else "drift"
+            dec.onset = int(tau)
+            dec.confidence = float(w[order[0]])
+            dec.runner_up = names[order[1]] if len(order) > 1 else ""
+            sd = np.sqrt(np.diag(cov))
+            cols = [es.columns[c] for c in h.columns]
+            dec.detail = " ".join(f"{c}={v:+.5f}" for c, v in zip(cols, th))
+            main = 0
+            for i, c in enumerate(cols):
+                if c.endswith("_eff"):
+                    main = i
+                    break
+            dec.magnitude, dec.magnitude_std = float(th[main]), float(sd[main])
+            if h.name.startswith("sensor:"):       # offsets in raw units (inputs: relative)
+                lev = float(np.nanmean(es.level[rowsok][:, h.columns[0]]))
+                if h.name[7:] in es.input_names:
+                    dec.bias = float(th[0] * lev)
+                else:
+                    dec.bias = float(th[0])
+                    dec.magnitude, dec.magnitude_std = float(th[0] / lev), float(sd[0] / lev)
+        rows.append(dec)
+    return rows
+
+
+# ---- many engines -------------------------------------------------------------------------------
+def group_engines(records: list[FlightRecord]) -> dict[str, list[FlightRecord]]:
+    out: dict[str, list[FlightRecord]] = {}
+    for r in records:
+        out.setdefault(r.engine, []).append(r)
+    return {k: out[k] for k in sorted(out, key=_natural)}
+
+
+def regime_spans(db: GainDatabase) -> np.ndarray:
+    """Scale of every scheduling variable for regime grouping: its trim (or dynamics) axis span."""
+    ax = {a.name: a for a in db.dyn_grid.axes + db.trim_grid.axes}
+    return np.array([ax[p].hi - ax[p].lo if p in ax else 1.0 for p in db.names["p"]])
+
+
+def prepare(records: list[FlightRecord], db: GainDatabase) -> tuple[Signatures, np.ndarray]:
+    """Signatures of the database and the operating regimes of ``records`` (sets their windows)."""
+    if not records:
+        raise DiagnosisError("no flights to diagnose")
+    sig = Signatures(db)
+    for r in records:
+        if r.snapshot.p_names != list(db.names["p"]) or not set(sig.channels) <= set(r.snapshot.channels):
+            raise DiagnosisError(f"{r.source}: its snapshots ({r.snapshot.p_names}, {r.snapshot.channels}) "
+                                 f"do not match the database {db.path}")
+    centers = assign_regimes(records, regime_spans(db))
+    if not len(centers):
+        raise DiagnosisError(f"no steady operating regime common to the flights ({len(records)} flights, "
+                             f"{sum(len(r.snapshot) for r in records)} steady windows)")
+    return sig, centers
+
+
+def diagnose_fleet(records: list[FlightRecord], db: GainDatabase,
+                   cfg: DiagnosisConfig = DiagnosisConfig()) -> tuple[list[Decision], np.ndarray, list[str], np.ndarray]:
+    """Every engine of ``records``; returns (decisions, Sigma, deviation channel names, regime
+    centres (R, np))."""
+    sig, centers = prepare(records, db)
+    series = [engine_series(v, sig, len(centers)) for v in group_engines(records).values()]
+    Sigma = noise_covariance(series, cfg.floor)
+    rows = []
+    for es in series:
+        rows += diagnose_engine(es, Sigma, cfg)
+    return rows, Sigma, series[0].channels, centers
+
+
+def write_diagnosis(rows: list[Decision], path) -> None:
+    """``diagnosis.csv``: one row per engine and flight (columns :data:`CSV_FIELDS`), atomic."""
+    path = os.fspath(path)
+    tmp = path + ".tmp"
+    with open(tmp, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(CSV_FIELDS)
+        for r in rows:
+            w.writerow([r.engine, r.flight, r.label, r.status, r.detected, r.cls, r.kind, r.onset,
+                        _fmt(r.magnitude), _fmt(r.magnitude_std), _fmt(r.bias), _fmt(r.confidence),
+                        r.runner_up, _fmt(r.p_value), _fmt(r.statistic), r.detail, r.missing, r.source])
+    os.replace(tmp, path)
+
+
+def _fmt(v):
+    return "" if v is None or (isinstance(v, float) and not np.isfinite(v)) else f"{v:.6g}"

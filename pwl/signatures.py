@@ -1,0 +1,122 @@
+"""Fault signatures at matched scheduling: how health changes and sensor biases move a snapshot.
+
+The runtime schedules trims on the *measured* operating point (for the turbofan: altitude, Mach and
+the corrected fan speed NfR computed from the Nf sensor). A steady snapshot compared with the trim
+at its own measured operating point therefore has, by construction, zero deviation on the
+scheduling sensors; every other sensed channel and every input (fuel flow) deviates. With the
+database's linear model at p (discrete A, B, C, D, L, M, corrected units) the steady state obeys
+
+    (I - A) dx - B du = L h                      (state derivatives zero)
+    C_s dx + D_s du   = -M_s h - b_s             (scheduling sensors s read their trim value)
+
+for health change h and biases b_s of the scheduling sensors; with as many scheduling sensors as
+inputs the pair is square and gives dx, du. The relative deviations of the other channels are
+
+    d_y = (C dx + D du + M h + b_y) / y_trim,    d_u = (du + b_u) / u_trim
+
+so d = S [h; b] with one signature column per health parameter and per bias. A sensed output's
+bias is an offset in its raw unit (a thermocouple reading 15 K high, at any power); an input's is
+relative (a fuel-flow meter reading 2 % high). Biases of non-scheduling channels move only their
+own deviation; a scheduling-sensor bias moves the operating point and so every other channel.
+docs/diagnostics.md derives it; tests compare S with trims of the nonlinear model.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .database import GainDatabase
+from .interp import interpolate
+
+
+class DiagnosisError(ValueError):
+    """A database or results file that the diagnostics cannot use (the message says why)."""
+
+
+@dataclass
+class Deviation:
+    """One snapshot reduced to relative deviations from the trim at its operating point.
+
+    channels (m,) names; d (m,) relative deviations (NaN where the channel has no data); se (m,)
+    standard errors of d from the snapshot's sample scatter; S (m, ncol) signature columns named
+    ``columns`` (health parameters as fractions, then ``sensor:<channel>``: sensed outputs per raw
+    unit of offset, inputs per relative bias); level (ncol,): the trim value of each channel in raw
+    units at this snapshot (NaN for health columns); p (np,) operating point."""
+
+    channels: list[str]
+    d: np.ndarray
+    se: np.ndarray
+    S: np.ndarray
+    columns: list[str]
+    level: np.ndarray
+    p: np.ndarray
+
+
+class Signatures:
+    """Deviation channels and signature columns of a gain database (see the module docstring)."""
+
+    def __init__(self, db: GainDatabase):
+        self.db = db
+        names = db.names
+        sched = [c for c, corr, _ in db.schedule if c in names["y"] or c in names["u"]]
+        self.sched_y = [c for c in sched if c in names["y"]]
+        self.sched_u = [c for c in sched if c in names["u"] and c not in names["y"]]
+        if self.sched_u or len(self.sched_y) != db.n("u"):
+            raise DiagnosisError(
+                f"{db.path}: diagnostics need the operating point to be set by as many sensed outputs as "
+                f"there are inputs (the turbofan: NfR from Nf, one fuel flow); this database schedules on "
+                f"{[c for c, _, _ in db.schedule]} with inputs {names['u']}")
+        self.dev_y = [c for c in names["y"] if c not in self.sched_y]
+        self.channels = self.dev_y + list(names["u"])
+        self.columns = list(names["h"]) + [f"sensor:{c}" for c in list(names["y"]) + list(names["u"])]
+        self.t_axes = [names["p"].index(a) for a in db.trim_grid.names]
+        self.d_axes = [names["p"].index(a) for a in db.dyn_grid.names]
+
+    def theta_delta(self, mean: dict) -> tuple[float, float]:
+        c = self.db.correction
+        if c is None:
+            return 1.0, 1.0
+        return mean[c.theta_channel] / c.T_std, mean[c.delta_channel] / c.P_std
+
+    def at(self, mean: dict, se: dict) -> Deviation:
+        """Deviation and signatures of one snapshot: ``mean``/``se`` map raw channel -> value."""
+        db, nm = self.db, self.db.names
+        nx, nu, nh = db.n("x"), db.n("u"), db.n("h")
+        th, de = self.theta_delta(mean)
+        S_raw = np.array([[mean[c] for c, _, _ in db.schedule]])
+        p = db.operating_point(S_raw, th, de)[0]
+        pt, pd = p[self.t_axes][None], p[self.d_axes][None]
+        trim = {k: interpolate(db.trim_grid, db.trim[k], pt)[0] for k in "uy"}
+        mat = {k: interpolate(db.dyn_grid, db.dynamics[k], pd)[0] for k in "ABCDLM"}
+        iy = [nm["y"].index(c) for c in self.sched_y]
+        # the square steady-state system of the module docstring
+        Phi = np.block([[np.eye(nx) - mat["A"], -mat["B"]], [mat["C"][iy], mat["D"][iy]]])
+        nb = db.n("y") + nu
+        rhs = np.zeros((nx + len(iy), nh + nb))
+        rhs[:nx, :nh] = mat["L"]
+        rhs[nx:, :nh] = -mat["M"][iy]
+        for r, j in enumerate(iy):
+            rhs[nx + r, nh + j] = -trim["y"][j]          # relative bias b_s times the trim value
+        try:
+            v = np.linalg.solve(Phi, rhs)
+        except np.linalg.LinAlgError:
+            raise DiagnosisError(f"{db.path}: the steady-state system at p = {p} is singular") from None
+        dx, du = v[:nx], v[nx:]
+        Mh = np.zeros((db.n("y"), nh + nb))
+        Mh[:, :nh] = mat["M"]
+        dy = mat["C"] @ dx + mat["D"] @ du + Mh
+        ydev = [nm["y"].index(c) for c in self.dev_y]
+        S = np.vstack([dy[ydev] / trim["y"][ydev, None], du / trim["u"][:, None]])
+        for r, c in enumerate(self.channels):                    # own biases: unit columns
+            S[r, nh + (nm["y"].index(c) if c in nm["y"] else db.n("y") + nm["u"].index(c))] += 1.0
+        fy = db.correction_factor(nm["y"], th, de)[0]
+        fu = db.correction_factor(nm["u"], th, de)[0]
+        meas = np.array([mean[c] for c in self.channels])
+        fac = np.r_[fy[ydev], fu]
+        ref = np.r_[trim["y"][ydev], trim["u"]]
+        d = meas / fac / ref - 1.0
+        s = np.array([se.get(c, np.nan) for c in self.channels]) / fac / ref
+        level = np.r_[np.full(nh, np.nan), trim["y"] * fy, trim["u"] * fu]
+        S[:, nh:nh + db.n("y")] /= level[nh:nh + db.n("y")]     # sensed outputs: offsets in raw units
+        return Deviation(list(self.channels), d, s, S, list(self.columns), level, p)

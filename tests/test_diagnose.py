@@ -1,0 +1,186 @@
+"""Diagnostics: steady snapshots (vs numpy), signatures (vs the nonlinear turbofan's trims), the
+detector on synthetic deviations (false-alarm rate vs its chi-square design, isolation, sizing),
+the fleet noise estimate (vs the covariance it was drawn from) and the scoring (vs hand counts)."""
+import csv
+
+import numpy as np
+import pytest
+
+from pwl.diagnose import (DiagnosisConfig, EngineSeries, FlightRecord, diagnose_engine, hypotheses,
+                          noise_covariance)
+from pwl.scoring import kappa, score
+from pwl.snapshots import SnapshotAccumulator, SteadyConfig
+
+
+# ---- snapshots ----------------------------------------------------------------------------------
+def steady_log(n=6000, dt=0.02, seed=0):
+    """p steps from 50 to 80 at t = 60 s and ramps after 100 s; two raw channels, one dead part."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * dt
+    p = np.where(t < 60, 50.0, 80.0)
+    p = np.where(t > 100, 80.0 + (t - 100) * 2.0, p)
+    raw = np.column_stack([p * 3 + rng.normal(0, 0.5, n), 100 + rng.normal(0, 1, n)])
+    raw[(t > 20) & (t < 25), 1] = np.nan          # a short dropout
+    return t, raw, p[:, None]
+
+
+def test_snapshot_windows_and_means_match_numpy_and_chunking():
+    t, raw, p = steady_log()
+    cfg = SteadyConfig(block=1.0, band=0.01, min_seconds=20, settle=5)
+    out = {"h_hat": raw[:, :1] * 0.001}
+
+    def feed(chunk):
+        acc = SnapshotAccumulator(["a", "b"], ["p"], [100.0], 0.02, {"h_hat": ["h"]}, cfg)
+        for a in range(0, t.size, chunk):
+            s = slice(a, a + chunk)
+            acc.add(a, t[s], raw[s], p[s], {"h_hat": out["h_hat"][s]}, np.zeros(t[s].size, bool))
+        return acc.snapshots()
+
+    one, many = feed(t.size), feed(777)          # 777 samples: blocks split across chunks
+    assert len(one) == 2                           # 5..60 s and 65..100 s; the ramp is not steady
+    np.testing.assert_allclose(one.t0, [5.0, 65.0])
+    np.testing.assert_allclose(one.t1, [59.98, 100.98], atol=0.02)
+    for w in range(2):
+        use = (t >= one.t0[w]) & (t <= one.t1[w])
+        ref = np.nanmean(raw[use], axis=0)
+        np.testing.assert_allclose(one.mean[w], ref, rtol=1e-12)
+        se = np.nanstd(raw[use], axis=0, ddof=1) / np.sqrt(np.isfinite(raw[use]).sum(axis=0))
+        np.testing.assert_allclose(one.se[w], se, rtol=1e-6)
+        np.testing.assert_allclose(one.outputs["h_hat"][w], ref[:1] * 0.001, rtol=1e-12)
+    use = (t >= one.t0[0]) & (t <= one.t1[0])
+    assert one.finite[0, 1] == pytest.approx(np.isfinite(raw[use, 1]).mean()) and one.finite[0, 1] < 0.95
+    for k in ("mean", "se", "finite", "p", "t0", "t1", "samples"):
+        np.testing.assert_allclose(getattr(many, k), getattr(one, k), rtol=1e-12)
+
+
+def test_snapshot_of_a_dead_channel_is_nan_not_zero():
+    t, raw, p = steady_log()
+    raw[:, 1] = np.nan
+    acc = SnapshotAccumulator(["a", "b"], ["p"], [100.0], 0.02, {}, SteadyConfig())
+    acc.add(0, t, raw, p, {}, np.zeros(t.size, bool))
+    s = acc.snapshots()
+    assert len(s) == 2 and np.all(np.isnan(s.mean[:, 1])) and np.all(s.finite[:, 1] == 0)
+
+
+# ---- the detector on synthetic deviations -------------------------------------------------------
+COLUMNS = ["fan_eff", "fan_flow", "hpt_eff", "hpt_flow", "sensor:A", "sensor:B", "sensor:C"]
+
+
+def synthetic_signatures(m=6, seed=3):
+    rng = np.random.default_rng(seed)
+    S = np.zeros((m, len(COLUMNS)))
+    S[:, :4] = rng.normal(0, 1.0, (m, 4))
+    for j in range(3):
+        S[j, 4 + j] = 0.01                    # sensor offsets of 1 raw unit = 1 % deviation
+    return S
+
+
+def series(D, S, engine="E"):
+    n, m = D.shape
+    fl = [FlightRecord(engine, (str(k), k, []), f"f{k}", f"f{k}", None) for k in range(n)]
+    return EngineSeries(engine, fl, [f"c{j}@0" for j in range(m)], COLUMNS, D, np.zeros_like(D),
+                        np.repeat(S[None], n, axis=0), np.ones((n, len(COLUMNS))), np.full((n, 2), np.nan),
+                        ["a", "b"], [])
+
+
+def test_false_alarms_stay_within_the_design_rate():
+    """No change at all: per engine-flight false alarms <= alpha (Bonferroni is conservative)."""
+    rng = np.random.default_rng(0)
+    S = synthetic_signatures()
+    sd = 1e-3
+    Sigma = np.eye(6) * sd ** 2
+    cfg = DiagnosisConfig(alpha=0.02, min_step=0.0, min_rate=0.0)
+    alarms = flights = 0
+    for e in range(150):
+        D = rng.normal(0, sd, (8, 6)) + rng.normal(0, 0.01, 6)      # engine offset + noise
+        rows = diagnose_engine(series(D, S), Sigma, cfg)
+        alarms += sum(r.detected for r in rows)
+        flights += sum(r.status == "ok" for r in rows)
+    # binomial upper bound: rate 0.02 over ~750 flights -> mean 15, allow 3 sigma above
+    assert alarms <= 0.02 * flights + 3 * np.sqrt(0.02 * flights)
+
+
+@pytest.mark.parametrize("cls,theta", [("fan", [-0.02, -0.01]), ("hpt", [-0.015, 0.008]),
+                                       ("sensor:B", [0.8]), ("sensor:C", [-1.5])])
+def test_a_step_is_detected_isolated_and_sized(cls, theta):
+    rng = np.random.default_rng(1)
+    S = synthetic_signatures()
+    sd = 1e-3
+    bank = {h.name: h for h in hypotheses(COLUMNS)}
+    change = S[:, bank[cls].columns] @ np.array(theta)
+    D = rng.normal(0, sd, (10, 6))
+    D[6:] += change
+    rows = diagnose_engine(series(D, S), np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0))
+    assert [r.detected for r in rows[:6]] == [0] * 6
+    last = rows[-1]
+    assert last.detected and last.cls == cls and last.onset == 6 and last.kind == "step"
+    est = [float(x.split("=")[1]) for x in last.detail.split()]
+    np.testing.assert_allclose(est, theta, atol=4 * last.magnitude_std + 1e-12, rtol=0.1)
+
+
+def test_a_drift_is_reported_with_its_rate():
+    rng = np.random.default_rng(2)
+    S = synthetic_signatures()
+    sd = 1e-3
+    D = rng.normal(0, sd, (10, 6)) + np.outer(np.arange(10), S[:, 0] * -0.002)  # fan_eff -0.2 %/flight
+    last = diagnose_engine(series(D, S), np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0))[-1]
+    assert last.detected and last.kind == "drift" and last.cls == "fan"
+    assert last.magnitude == pytest.approx(-0.002, rel=0.1)
+
+
+def test_noise_covariance_recovers_the_scatter_despite_steps():
+    rng = np.random.default_rng(4)
+    A = rng.normal(0, 1, (6, 6))
+    Sigma = (A @ A.T + 6 * np.eye(6)) * 1e-7
+    L = np.linalg.cholesky(Sigma)
+    S = synthetic_signatures()
+    out = []
+    for e in range(120):
+        D = rng.normal(0, 1, (15, 6)) @ L.T + rng.normal(0, 0.01, 6)
+        if e % 3 == 0:
+            D[7:] += 0.02 * S[:, 0]               # a big step in a third of the engines
+        out.append(series(D, S))
+    est = noise_covariance(out, floor=1e-6)
+    np.testing.assert_allclose(np.sqrt(np.diag(est)), np.sqrt(np.diag(Sigma)), rtol=0.1)
+
+
+# ---- scoring ------------------------------------------------------------------------------------
+def write_csv(path, header, rows):
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(header)
+        w.writerows(rows)
+
+
+def test_score_counts_rates_kappa_latency_and_sizing(tmp_path):
+    truth = tmp_path / "truth.csv"
+    write_csv(truth, ["engine", "class", "magnitude", "unit", "bias", "onset"],
+              [["E1", "none", "", "", "", -1], ["E2", "hpc", -0.02, "fraction", "", 2],
+               ["E3", "sensor:T48", 4.0, "sigma", 20.0, 1]])
+    diag = tmp_path / "d.csv"
+    hdr = ["engine", "flight", "detected", "class", "magnitude", "bias"]
+    rows = [["E1", k, int(k == 3), "fan" if k == 3 else "none", "", ""] for k in range(4)]
+    rows += [["E2", 0, 0, "none", "", ""], ["E2", 1, 0, "none", "", ""],
+             ["E2", 2, 0, "none", "", ""], ["E2", 3, 1, "hpc", -0.018, ""]]
+    rows += [["E3", 0, 0, "none", "", ""], ["E3", 1, 1, "hpc", -0.01, ""],
+             ["E3", 2, 1, "sensor:T48", 0.01, 22.0], ["E3", 3, 1, "sensor:T48", 0.01, 21.0]]
+    write_csv(diag, hdr, rows)
+    r = score(diag, truth)
+    # fault present: E2 flights 2, 3 and E3 flights 1..3 -> 5, detected 4
+    assert r["fault_flights"] == 5 and r["tpr"] == pytest.approx(4 / 5)
+    # no fault: E1 x4, E2 flights 0, 1, E3 flight 0 -> 7, one false alarm
+    assert r["no_fault_flights"] == 7 and r["fpr"] == pytest.approx(1 / 7)
+    assert r["correct_classification"] == pytest.approx(3 / 4)
+    assert r["sensor_as_component"] == pytest.approx(1 / 3)
+    assert r["latency_median"] == pytest.approx(0.5)        # E2: 1 flight, E3: 0
+    assert r["sizing_error_median"] == pytest.approx(np.median([0.1, 0.05]))
+    lab = r["confusion"]["labels"]
+    cm = np.array(r["confusion"]["counts"])
+    assert cm.sum() == 12 and cm[lab.index("none"), lab.index("fan")] == 1
+    assert r["kappa"] == pytest.approx(kappa(cm))
+
+
+def test_kappa_closed_form():
+    # 2 x 2: po = 0.7, pe = 0.5 * 0.6 + 0.5 * 0.4 = 0.5 -> kappa 0.4
+    assert kappa([[35, 15], [15, 35]]) == pytest.approx(0.4)
+    assert kappa([[20, 30], [10, 40]]) == pytest.approx((0.6 - (0.5 * 0.3 + 0.5 * 0.7)) / (1 - 0.5))
