@@ -36,8 +36,9 @@ N(-0.005, 0.003) clipped to <= 0; compressor flows (fan, lpc, hpc) N(-0.004, 0.0
 to <= 0; turbine flows (hpt, lpt) N(+0.003, 0.002) clipped to >= 0.
 
 Gradual deterioration (:data:`DETERIORATION`), linear in the flight index, the rate drawn once
-per engine: efficiencies lose U(0, 2e-4) per flight, compressor flows lose U(0, 1.5e-4) per
-flight, turbine flows gain U(0, 1e-4) per flight.
+per engine: efficiencies lose U(0, 1e-4) per flight, compressor flows lose U(0, 7.5e-5) per
+flight, turbine flows gain U(0, 5e-5) per flight: at most 0.2 % efficiency over 20 flights, the
+slow wear every engine has, well below the abrupt faults' 1..4 %.
 
 Per-flight variation (:data:`FLIGHT_VARIATION`): ISA temperature offset dTamb U(-10, 20) K,
 cruise altitude U(8000, 11000) m, cruise Mach U(0.74, 0.82), take-off throttle TRA
@@ -53,7 +54,7 @@ diagnostics have a few fault-free flights as a baseline, as in ProDiMES. For M <
 is empty and the onset is the last flight, M - 1 (M >= 2 is required, so there is always at
 least one fault-free flight before it).
 
-Flight j of an engine starts at :data:`START` + j days (``flight_start``), so the time order
+Flight j of an engine starts at :data:`START` + j days (``flight_start``, the log attr ``flight_time``), so the time order
 of the flights is explicit.
 
 Randomness: every draw comes from ``numpy.random.SeedSequence(seed)`` spawned children: one
@@ -96,7 +97,7 @@ REFERENCE_TRIM = {"alt": 9000.0, "Mach": 0.78, "NfR": 92.0}
 SCATTER = {"eff": (-0.005, 0.003, "<=0"), "compressor_flow": (-0.004, 0.003, "<=0"),
            "turbine_flow": (0.003, 0.002, ">=0")}
 #: per-flight deterioration rates, uniform (lo, hi) per flight, drawn once per engine
-DETERIORATION = {"eff": (-2e-4, 0.0), "compressor_flow": (-1.5e-4, 0.0), "turbine_flow": (0.0, 1e-4)}
+DETERIORATION = {"eff": (-1e-4, 0.0), "compressor_flow": (-7.5e-5, 0.0), "turbine_flow": (0.0, 5e-5)}
 #: per-flight variation, uniform (lo, hi)
 FLIGHT_VARIATION = {"dTamb": (-10.0, 20.0), "cruise_alt": (8000.0, 11000.0),
                     "cruise_mach": (0.74, 0.82), "tra_takeoff": (82.0, 89.5),
@@ -303,12 +304,15 @@ def fault_unit(cls: str) -> str:
     return "sigma" if cls.startswith("sensor:") and cls != "sensor:Wf" else ("fraction" if cls != "none" else "")
 
 
-def simulate_flight(plan: FleetPlan, engine_index: int, flight_index: int, model=None) -> dict:
+def simulate_flight(plan: FleetPlan, engine_index: int, flight_index: int, model=None,
+                    health=None) -> dict:
     """Fly one flight of one engine; the dict of :func:`models.flight.simulate` with the sensor
-    fault (if active) applied to the logged channel only, and fleet attrs: engine, flight,
-    flight_start, fault_class, fault_magnitude, fault_unit, fault_bias, fault_onset,
+    fault (if active) applied to the logged channel only, and fleet attrs: engine, flight_index,
+    flight_time (ISO start), fault_class, fault_magnitude, fault_unit, fault_bias, fault_onset,
     fault_active and the flight's settings. ``model``: default a fresh copy of a pristine
     :class:`Turbofan` (so the result does not depend on earlier simulations in the process).
+    ``health`` (10,) overrides the engine's true health for this flight (what-if studies, e.g. a
+    fault outside the classes); default :func:`health_at`.
     Raises models.turbofan.PlantError if the flight cannot be simulated."""
     i, j = _check_index(plan, engine_index, flight_index)
     s = flight_settings(plan, i, j)
@@ -316,7 +320,8 @@ def simulate_flight(plan: FleetPlan, engine_index: int, flight_index: int, model
                           DT, s["noise_seed"], False,
                           {"takeoff": s["tra_takeoff"], "cruise": s["tra_cruise"]})
     m = model if model is not None else copy.deepcopy(_pristine_model())
-    r = simulate(m, prof, health=health_at(plan, i, j), seed=s["noise_seed"])
+    h = health_at(plan, i, j) if health is None else np.asarray(health, float).reshape(len(H_NAMES))
+    r = simulate(m, prof, health=h, seed=s["noise_seed"])
     c = plan.fault_class[i]
     active = fault_active(plan, i, j)
     if active and c == "sensor:Wf":
@@ -325,7 +330,7 @@ def simulate_flight(plan: FleetPlan, engine_index: int, flight_index: int, model
         name = c.split(":", 1)[1]
         r["channels"][name] = r["channels"][name] + plan.bias[i]
     r["attrs"].update({
-        "engine": plan.serial[i], "engine_index": i, "flight": j, "flight_start": flight_start(j),
+        "engine": plan.serial[i], "engine_index": i, "flight_index": j, "flight_time": flight_start(j),
         "fleet_seed": plan.seed, "fault_class": c, "fault_magnitude": float(plan.magnitude[i]),
         "fault_unit": fault_unit(c), "fault_bias": float(plan.bias[i]),
         "fault_onset": int(plan.onset[i]), "fault_active": bool(active),

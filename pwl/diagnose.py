@@ -333,9 +333,13 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
     bank_all = hypotheses(es.columns, cfg.pairs)
     rows = []
     present = np.isfinite(es.D)
+    # flight numbers: the logs' flight_index when every flight has a distinct one (a missing
+    # flight then leaves a gap, and onsets and rates are in the logs' numbering), else positions
+    fidx = [f.order[1] for f in es.flights]
+    number = np.array(fidx if min(fidx, default=-1) >= 0 and len(set(fidx)) == n else range(n), float)
     for k in range(n):
         r = es.flights[k]
-        dec = Decision(es.engine, k, r.label, r.source, "ok",
+        dec = Decision(es.engine, int(number[k]), r.label, r.source, "ok",
                        h_hat=dict(zip(es.h_names, es.h_hat[k])) if np.isfinite(es.h_hat[k]).all() else {})
         if not present[k].any():
             dec.status = "no steady snapshot"
@@ -358,7 +362,7 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
         Wt = np.linalg.inv(np.linalg.cholesky(Sig))
         # hypotheses testable with these channels (a bias of a channel without data is not)
         bank = [h for h in bank_all if np.linalg.norm(Sbar_all[:, h.columns], axis=0).min() > 1e-9]
-        t = rowsok.astype(float)
+        t = number[rowsok]
         best, n_tests, fits_all = None, 0, {}
         for shape in ("step", "ramp"):
             lo = cfg.n_base if shape == "step" else 1

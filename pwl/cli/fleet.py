@@ -93,10 +93,8 @@ def run_diagnose(args) -> int:
     rows, Sigma, channels, centers = diagnose_fleet(records, db, cfg)
     write_diagnosis(rows, args.output)
     engines = sorted({r.engine for r in rows})
-    flagged = {}
-    for r in rows:
-        if r.detected:
-            flagged[r.engine] = r
+    latest = {r.engine: r for r in rows}            # rows are in time order per engine
+    flagged = {e: r for e, r in latest.items() if r.detected}
     print(f"{len(engines)} engines, {len(rows)} flights -> {args.output}")
     for j, c in enumerate(centers):
         print(f"  regime {j}: steady near " + ", ".join(f"{n} {v:.4g}" for n, v in zip(db.names["p"], c)))

@@ -1,7 +1,7 @@
 """pwl fleet simulate: a ProDiMES-style fleet of simulated turbofan flights (models.fleet).
 
 Writes FLEET/<serial>/flight_<NNN>.h5 (one flight log per engine and flight, truth inside, fleet
-attrs: engine, flight, flight_start, fault class/magnitude/onset, fault_active, the flight's
+attrs: engine, flight_index, flight_time, fault class/magnitude/onset, fault_active, the flight's
 settings), FLEET/truth.csv (one row per engine: the fault that was seeded) and FLEET/fleet.json
 (the generation settings and every constant of the fleet, software version).
 """
