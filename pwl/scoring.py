@@ -2,8 +2,9 @@
 
 Inputs are two CSV files, so any diagnostic method can be scored:
 
-- the diagnosis, one row per engine and flight: ``engine``, ``flight`` (0-based index in time
-  order), ``detected`` (0/1), ``class`` (the assigned class; ignored when not detected); optional
+- the diagnosis, one row per engine and flight: ``engine``, ``flight`` (flight number in the
+  numbering of the truth's ``onset``: the logs' ``flight_index``, else the 0-based position in
+  time order), ``detected`` (0/1), ``class`` (the assigned class; ignored when not detected); optional
   ``kind`` (step/drift), ``magnitude`` (efficiency change for components, relative bias for the
   fuel-flow measurement) and ``bias`` (sensor units, for sensor faults);
 - the truth, one row per engine: ``engine``, ``class`` (``none`` for a healthy engine), ``onset``

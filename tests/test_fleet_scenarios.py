@@ -206,3 +206,9 @@ def test_tiny_fleet_simulate_run_diagnose_score(tmp_path, capsys):
     assert res["fpr"] == pytest.approx(fp / n_neg) and res["tpr"] == pytest.approx(tp / n_pos)
     assert fp == 0
     assert n_pos > 0 and tp / n_pos >= 0.5
+    # a corrupt results file among the others is named and skipped; the rest is still diagnosed
+    (R / "ESN002" / "flight_006.estimates.h5").write_bytes(b"not HDF5")
+    assert main(["fleet", "diagnose", str(R), "-o", str(diag)]) == 1
+    assert "flight_006.estimates.h5: unreadable results file" in capsys.readouterr().err
+    with open(diag, newline="") as fh:
+        assert len(list(csv.DictReader(fh))) == 36

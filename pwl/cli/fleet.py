@@ -24,7 +24,8 @@ def add_arguments(p):
 
     d = sub.add_parser("diagnose", help="detect, isolate and size faults from pwl run results",
                        description="detect, isolate and size faults from pwl run results, one row per "
-                                   "engine and flight (docs/diagnostics.md)")
+                                   "engine and flight (docs/diagnostics.md); unreadable results files "
+                                   "are skipped and named, and the exit status is then 1")
     d.add_argument("results", nargs="+", help="results files or folders (walked recursively) of pwl run")
     d.add_argument("-o", "--output", default="diagnosis.csv", help="CSV to write (default diagnosis.csv)")
     d.add_argument("--database", help="gain database (default: the one recorded in the results)")
@@ -63,19 +64,39 @@ def results_files(paths) -> list[str]:
     return out
 
 
+def read_flights(files):
+    """FlightRecords of the readable results files, and (file, reason) for the others (reported on
+    stderr: one corrupt or foreign file must not stop a fleet's diagnosis)."""
+    from ..diagnose import DiagnosisError, read_flight
+    records, skipped = [], []
+    for f in files:
+        try:
+            records.append(read_flight(f))
+        except DiagnosisError as e:
+            skipped.append((f, str(e)))
+    if skipped:
+        print(f"{len(skipped)} of {len(files)} results files skipped:", file=sys.stderr)
+        for f, why in skipped:
+            print(f"  {why}", file=sys.stderr)
+    return records, skipped
+
+
 def run_diagnose(args) -> int:
     from dataclasses import replace
 
     import numpy as np
 
     from ..database import GainDatabase
-    from ..diagnose import DiagnosisConfig, diagnose_fleet, read_flight, write_diagnosis
+    from ..diagnose import DiagnosisConfig, diagnose_fleet, write_diagnosis
 
     files = results_files(args.results)
     if not files:
         print("pwl fleet diagnose: no results files (*.estimates.h5) found", file=sys.stderr)
         return 2
-    records = [read_flight(f) for f in files]
+    records, skipped = read_flights(files)
+    if not records:
+        print("pwl fleet diagnose: no readable results files", file=sys.stderr)
+        return 2
     dbs = sorted({r.database for r in records if r.database})
     db_path = args.database or (dbs[0] if len(dbs) == 1 else None)
     if db_path is None:
@@ -107,7 +128,7 @@ def run_diagnose(args) -> int:
     for e, r in flagged.items():
         what = f"{r.kind} {r.detail}" + (f" (bias {r.bias:+.4g})" if np.isfinite(r.bias) else "")
         print(f"  {e}: {r.cls} from flight {r.onset}, {what}, confidence {r.confidence:.2f}")
-    return 0
+    return 1 if skipped else 0
 
 
 def run_score(args) -> int:

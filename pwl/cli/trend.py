@@ -13,12 +13,12 @@ def run(args) -> int:
     import sys
 
     from ..database import GainDatabase
-    from ..diagnose import group_engines, read_flight
+    from ..diagnose import group_engines
     from ..trending import engine_trend, plot_trend
-    from .fleet import results_files
+    from .fleet import read_flights, results_files
     from .output import plot_or_note
 
-    records = [read_flight(f) for f in results_files(args.results)]
+    records, _ = read_flights(results_files(args.results))
     if len(records) < 2:
         print("pwl trend: a trend needs at least two flights", file=sys.stderr)
         return 2
