@@ -81,6 +81,18 @@ def read_flights(files):
     return records, skipped
 
 
+def database_of(records, given=None) -> str:
+    """The gain database to diagnose with: ``given``, else the one every results file names
+    (ValueError naming them when they differ or name none)."""
+    if given:
+        return given
+    dbs = sorted({r.database for r in records if r.database})
+    if len(dbs) != 1:
+        raise ValueError(("the results name several databases: " + ", ".join(dbs) if dbs else
+                          "the results do not name their database") + "; give --database")
+    return dbs[0]
+
+
 def run_diagnose(args) -> int:
     from dataclasses import replace
 
@@ -97,12 +109,7 @@ def run_diagnose(args) -> int:
     if not records:
         print("pwl fleet diagnose: no readable results files", file=sys.stderr)
         return 2
-    dbs = sorted({r.database for r in records if r.database})
-    db_path = args.database or (dbs[0] if len(dbs) == 1 else None)
-    if db_path is None:
-        print("pwl fleet diagnose: " + ("the results name several databases " + ", ".join(dbs) if dbs else
-              "the results do not name their database") + "; give --database", file=sys.stderr)
-        return 2
+    db_path = database_of(records, args.database)
     cfg = DiagnosisConfig()
     if args.alpha is not None:
         cfg = replace(cfg, alpha=args.alpha)

@@ -15,20 +15,14 @@ def run(args) -> int:
     from ..database import GainDatabase
     from ..diagnose import group_engines
     from ..trending import engine_trend, plot_trend
-    from .fleet import read_flights, results_files
+    from .fleet import database_of, read_flights, results_files
     from .output import plot_or_note
 
     records, _ = read_flights(results_files(args.results))
     if len(records) < 2:
         print("pwl trend: a trend needs at least two flights", file=sys.stderr)
         return 2
-    dbs = sorted({r.database for r in records if r.database})
-    db_path = args.database or (dbs[0] if len(dbs) == 1 else None)
-    if db_path is None:
-        print("pwl trend: " + ("the results name several databases: " + ", ".join(dbs) if dbs else
-              "the results do not name their database") + "; give --database", file=sys.stderr)
-        return 2
-    db = GainDatabase.open(db_path)
+    db = GainDatabase.open(database_of(records, args.database))
     engines = group_engines(records)
     status = 0
     for i, (eng, recs) in enumerate(engines.items()):
