@@ -37,6 +37,7 @@ import csv
 import os
 import re
 from dataclasses import dataclass, field
+from functools import partial
 
 import h5py
 import numpy as np
@@ -63,11 +64,12 @@ class DiagnosisConfig:
     kappa: float = 6.0
     n_base: int = 3
     min_step: float = 0.002
-    min_rate: float = 0.0004
+    min_rate: float = 0.001
     floor: float = 2e-4
     eps: float = 0.1
     pairs: bool = True
     pair_cost: float = 6.0
+    wear: bool = True
 
 
 @dataclass
@@ -294,24 +296,31 @@ CSV_FIELDS = ("engine", "flight", "label", "status", "detected", "class", "kind"
               "missing", "source")
 
 
-def _fit_changes(D, Wt, S, t, taus, shape, bank, eps):
+def _fit_changes(D, Wt, S, t, taus, shape, bank, eps, trend=False):
     """For each change point tau and hypothesis: statistic, estimate, its covariance.
 
     D (n, m) deviations at flights t (n,), Wt (m, m) whitening (Wt @ d ~ N(0, I)), S (m, ncol)
-    signatures. The signatures are uncertain by a fraction ``eps`` of the change they describe
+    signatures. The engine's own level is a nuisance, and with ``trend`` also a straight line in
+    t per channel (the engine's normal wear), so that a step is a jump off the engine's own wear
+    line. The signatures are uncertain by a fraction ``eps`` of the change they describe
     (linearisation at the database's nodes, fault sizes beyond the linear range), so the
     covariance of the change estimate grows by (eps * change)^2 per channel, the change being
     the observed one (common to every hypothesis, which keeps their statistics comparable).
-    Returns a list of (tau, hypothesis index, T, theta, cov, g2)."""
+    Returns a list of (tau, hypothesis index, T, theta, cov, E) with E = g2 |Wt delta|^2 the
+    likelihood gain of an unconstrained change at tau (no signature uncertainty): what locates
+    the change point, since T saturates near 1/eps^2 per channel for a large change at any tau."""
     out = []
     n = t.size
+    X = np.column_stack([np.ones(n), t - t.mean()]) if trend and n >= 4 else np.ones((n, 1))
+    Xp = np.linalg.pinv(X)
     for tau in taus:
         f = (t >= tau).astype(float) if shape == "step" else np.maximum(0.0, t - tau + 1.0)
-        g = f - f.mean()                       # the engine's level projected out
+        g = f - X @ (Xp @ f)                   # the nuisance (level, wear line) projected out
         g2 = float(g @ g)
         if g2 < 1e-9 or n < 2:
             continue
         delta = D.T @ g / g2                   # the observed change (per unit of f), relative
+        E = g2 * float(np.sum((Wt @ delta) ** 2))
         Cw = np.eye(D.shape[1]) / g2 + (Wt * (eps * delta) ** 2) @ Wt.T
         Lw = np.linalg.cholesky(Cw)
         v = np.linalg.solve(Lw, Wt @ delta)    # whitened change estimate, N(0, I) if none
@@ -323,8 +332,55 @@ def _fit_changes(D, Wt, S, t, taus, shape, bank, eps):
             except np.linalg.LinAlgError:
                 continue
             th = Gi @ (A.T @ v)
-            out.append((tau, hi, float(v @ A @ th), th, Gi, g2))
+            out.append((tau, hi, float(v @ A @ th), th, Gi, E))
     return out
+
+
+def _decide(dec, stage, bank, S, t, es, rowsok, n_tests, cfg) -> bool:
+    """The change point and shape of one stage with the largest likelihood gain of an
+    unconstrained change, then the hypothesis there with the largest T - cost; fill ``dec`` and
+    return True if it is detected (Bonferroni p below alpha and big enough)."""
+    by_point = {}
+    for shape, fits in stage:
+        for f in fits:
+            by_point.setdefault((shape, f[0]), []).append(f)
+    if not by_point:
+        return False
+    shape, tau = max(by_point, key=lambda k: by_point[k][0][5])
+    here = by_point[(shape, tau)]
+    _, hi, T, th, cov, _ = max(here, key=lambda f: f[2] - bank[f[1]].cost(cfg))
+    p = float(stats.chi2.sf(T, len(bank[hi].columns))) * n_tests
+    h = bank[hi]
+    size = float(np.linalg.norm(S[:, h.columns] @ th))   # fitted change (rate for ramps), relative
+    if shape == "ramp":
+        big = size >= cfg.min_rate and size * (t[-1] - tau + 1) >= cfg.min_step
+    else:
+        big = size >= cfg.min_step
+    if not (p < cfg.alpha and big):
+        return False
+    # confidence among the bank at the chosen change point and shape
+    sc = np.array([f[2] - bank[f[1]].cost(cfg) for f in here])
+    w = np.exp((sc - sc.max()) / 2.0)
+    w /= w.sum()
+    order = np.argsort(-w)
+    dec.detected, dec.cls, dec.statistic = 1, h.name, T
+    dec.kind = "step" if shape == "step" else "drift"
+    dec.onset = int(tau)
+    dec.confidence = float(w[order[0]])
+    dec.runner_up = bank[here[order[1]][1]].name if len(order) > 1 else ""
+    sd = np.sqrt(np.diag(cov))
+    cols = [es.columns[c] for c in h.columns]
+    dec.detail = " ".join(f"{c}={v:+.5f}" for c, v in zip(cols, th))
+    main = next((i for i, c in enumerate(cols) if c.endswith("_eff")), 0)
+    dec.magnitude, dec.magnitude_std = float(th[main]), float(sd[main])
+    if h.name.startswith("sensor:"):       # offsets in raw units (inputs: relative)
+        lev = float(np.nanmean(es.level[rowsok][:, h.columns[0]]))
+        if h.name[7:] in es.input_names:
+            dec.bias = float(th[0] * lev)
+        else:
+            dec.bias = float(th[0])
+            dec.magnitude, dec.magnitude_std = float(th[0] / lev), float(sd[0] / lev)
+    return True
 
 
 def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = DiagnosisConfig()) -> list[Decision]:
@@ -363,64 +419,24 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
         # hypotheses testable with these channels (a bias of a channel without data is not)
         bank = [h for h in bank_all if np.linalg.norm(Sbar_all[:, h.columns], axis=0).min() > 1e-9]
         t = number[rowsok]
-        best, n_tests, fits_all = None, 0, {}
-        for shape in ("step", "ramp"):
-            lo = cfg.n_base if shape == "step" else 1
-            taus = t[lo:] if lo < t.size else []
-            # the signatures hardly move with the operating point: their mean over the flights is used
-            fits = _fit_changes(D, Wt, Sbar_all, t, taus, shape, bank, cfg.eps)
-            n_tests += len(taus) * len(bank)
-            for fit in fits:
-                tau, hi, T = fit[:3]
-                fits_all.setdefault((shape, tau), []).append(fit)
-                score = T - bank[hi].cost(cfg)
-                if best is None or score > best[0]:
-                    best = (score, shape) + fit
-        if best is None:
+        # the signatures hardly move with the operating point: their mean over the flights is used
+        fit = partial(_fit_changes, D, Wt, Sbar_all, t, bank=bank, eps=cfg.eps)
+        # 1. a step or a drift that starts after the first flights, off the engine's wear line
+        stage1 = [("step", fit(t[cfg.n_base:], "step", trend=cfg.wear)),
+                  ("ramp", fit(t[1:], "ramp", trend=cfg.wear))]
+        # 2. with the wear line as nuisance, wear faster than normal is tested on its own: the
+        #    engine's whole-history rate (a ramp from the first flight, level only)
+        stage2 = [("ramp", fit(t[:1], "ramp"))] if cfg.wear else []
+        n_tests = max(1, sum(len(f) for _, f in stage1 + stage2))
+        p_all = [float(stats.chi2.sf(f[2], len(bank[f[1]].columns))) * n_tests
+                 for _, fits in stage1 + stage2 for f in fits]
+        if not p_all:
             rows.append(dec)
             continue
-        p_min = min(float(stats.chi2.sf(f[2], len(bank[f[1]].columns)))
-                    for v in fits_all.values() for f in v) * max(n_tests, 1)
-        score, shape, tau, hi, T, th, cov, g2 = best
-        h = bank[hi]
-        change = Sbar_all[:, h.columns] @ th       # fitted change (rate for ramps), relative
-        size = float(np.linalg.norm(change))
-        big = size >= (cfg.min_rate if shape == "ramp" else cfg.min_step)
-        if shape == "ramp":
-            big = big and size * (t[-1] - tau + 1) >= cfg.min_step
-        # confidence among the bank at the chosen change point and shape
-        here = fits_all[(shape, tau)]
-        sc = np.array([f[2] - bank[f[1]].cost(cfg) for f in here])
-        names = [bank[f[1]].name for f in here]
-        w = np.exp((sc - sc.max()) / 2.0)
-        w /= w.sum()
-        order = np.argsort(-w)
-        p = p_min
-        dec.p_value = min(p, 1.0)
-        dec.statistic = T
-        if p < cfg.alpha and big:
-            dec.detected = 1
-            dec.cls = h.name
-            dec.kind = "step" if shape == "step" else "drift"
-            dec.onset = int(tau)
-            dec.confidence = float(w[order[0]])
-            dec.runner_up = names[order[1]] if len(order) > 1 else ""
-            sd = np.sqrt(np.diag(cov))
-            cols = [es.columns[c] for c in h.columns]
-            dec.detail = " ".join(f"{c}={v:+.5f}" for c, v in zip(cols, th))
-            main = 0
-            for i, c in enumerate(cols):
-                if c.endswith("_eff"):
-                    main = i
-                    break
-            dec.magnitude, dec.magnitude_std = float(th[main]), float(sd[main])
-            if h.name.startswith("sensor:"):       # offsets in raw units (inputs: relative)
-                lev = float(np.nanmean(es.level[rowsok][:, h.columns[0]]))
-                if h.name[7:] in es.input_names:
-                    dec.bias = float(th[0] * lev)
-                else:
-                    dec.bias = float(th[0])
-                    dec.magnitude, dec.magnitude_std = float(th[0] / lev), float(sd[0] / lev)
+        dec.p_value = min(min(p_all), 1.0)
+        for stage in (stage1, stage2):
+            if stage and _decide(dec, stage, bank, Sbar_all, t, es, rowsok, n_tests, cfg):
+                break
         rows.append(dec)
     return rows
 
