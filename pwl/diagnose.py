@@ -68,7 +68,7 @@ class DiagnosisConfig:
     floor: float = 2e-4
     eps: float = 0.1
     pairs: bool = True
-    pair_cost: float = 6.0
+    pair_cost: float = 10.0
     wear: bool = True
 
 
