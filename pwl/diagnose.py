@@ -4,24 +4,29 @@ Per engine, every flight's longest steady snapshot (:mod:`pwl.snapshots`) is red
 deviations d from the trim at its measured operating point, with signature columns S for every
 health parameter and sensor bias (:mod:`pwl.signatures`). Over the flights 0..k seen so far:
 
-    d_j = a + f_j(tau) S_c theta + e_j,     e_j ~ N(0, Sigma)
+    d_j = a + b t_j + f_j(tau) S_c theta + e_j,     e_j ~ N(0, Sigma)
 
-with a the engine's own level (engine-to-engine scatter and model offset, never needed), f the
-shape of the change (a step 1[j >= tau], or a ramp max(0, j - tau + 1) for a drift), c one
+with a the engine's own level (engine-to-engine scatter and model offset, never needed) and b its
+own wear line (normal wear; ``DiagnosisConfig.wear``), f the shape of the change (a step
+1[j >= tau], or a ramp max(0, j - tau + 1) for a drift starting after the first flights), c one
 hypothesis of a fixed bank (one component's efficiency and flow; two components; one sensor or
 the fuel-flow measurement) and theta its size. After whitening with Sigma and projecting out
 the level, the generalised likelihood ratio of hypothesis c at change point tau is
 T_c = |P_c v|^2 with v the whitened change estimate: chi-square with rank(c) degrees of freedom
 when nothing changed.
 
-- **Detection** at flight k: the smallest chi-square p-value over all change points, shapes and
-  hypotheses, times their number (Bonferroni), below ``alpha``; and a change of at least
+- **Change point**: the tau and shape with the largest likelihood gain of an unconstrained
+  change (T saturates under the signature uncertainty for large changes). Wear faster than
+  ``min_rate`` per flight from the first flight on is tested separately (the wear line itself,
+  level-only ramp) when no step or late drift is found.
+- **Detection** at flight k: the chi-square p-value of the chosen change, times the number of
+  change points, shapes and hypotheses tested (Bonferroni), below ``alpha``; and a change of at least
   ``min_step`` (relative deviation, norm over channels) so that tiny but significant model
   effects do not flag. Recomputed on the whole history each flight: a persistent fault stays
   flagged.
-- **Isolation**: the hypothesis and change point maximising T_c - kappa * rank(c) (a fixed cost
-  per free parameter, so a sensor bias is not read as a two-parameter component change that fits
-  it equally well); confidence = its share of exp((T - kappa * rank) / 2) over the bank.
+- **Isolation**: the hypothesis maximising T_c - kappa * rank(c) at that change point (a fixed
+  cost per free parameter, plus ``pair_cost`` for two components, so a sensor bias is not read
+  as a two-parameter component change that fits it equally well); confidence = its share of exp((T - kappa * rank) / 2) over the bank.
 - **Sizing**: theta with its standard error from the same least squares.
 - **Drift**: a ramp that wins is reported as kind ``drift`` with its rate per flight.
 
@@ -58,7 +63,9 @@ class DiagnosisConfig:
     min_step: smallest change reported (norm of the relative deviation change); min_rate: smallest
     drift reported (per flight, same norm); floor: smallest flight-to-flight scatter assumed per
     channel (relative); eps: relative uncertainty of the signatures; pairs: also test
-    two-component changes, at an extra cost ``pair_cost`` (a combined fault is rarer than a single one)."""
+    two-component changes, at an extra cost ``pair_cost`` (a combined fault is rarer than a single
+    one, and must explain more than a large single fault's nonlinearity); wear: the engine's own
+    wear line is a nuisance of the step tests (normal wear is not a fault)."""
 
     alpha: float = 1e-3
     kappa: float = 6.0

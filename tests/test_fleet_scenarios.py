@@ -186,8 +186,9 @@ def test_tiny_fleet_simulate_run_diagnose_score(tmp_path, capsys):
     diag = tmp_path / "diagnosis.csv"
     assert main(["fleet", "diagnose", str(R), "-o", str(diag)]) == 0
     capsys.readouterr()
-    assert main(["fleet", "score", str(diag), str(F / "truth.csv"), "--json"]) == 0
-    res = json.loads(capsys.readouterr().out)
+    png = tmp_path / "confusion.png"
+    assert main(["fleet", "score", str(diag), str(F / "truth.csv"), "--json", "--plot", str(png)]) == 0
+    res = json.loads(capsys.readouterr().out)         # stdout is JSON only, the plot note on stderr
     with open(F / "truth.csv", newline="") as fh:
         truth = {r["engine"]: r for r in csv.DictReader(fh)}
     with open(diag, newline="") as fh:

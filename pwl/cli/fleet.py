@@ -148,5 +148,5 @@ def run_score(args) -> int:
     else:
         print(table(res))
     if args.plot:
-        plot_or_note(plot_confusion, args.plot, res)
+        plot_or_note(plot_confusion, args.plot, res, file=sys.stderr if args.json else None)
     return 0

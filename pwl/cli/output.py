@@ -6,15 +6,16 @@ import json
 NO_PLOT = "(no plot: install the plot extra, pip install -e '.[plot]')"
 
 
-def plot_or_note(plot, path, *args, lead: str = "") -> bool:
+def plot_or_note(plot, path, *args, lead: str = "", file=None) -> bool:
     """``plot(*args, path)`` (a matplotlib figure writer); without matplotlib, print how to get it
-    instead. ``lead`` is printed before the message (e.g. a blank line). True if written."""
+    instead. ``lead`` is printed before the message (e.g. a blank line); ``file``: where the
+    message goes (default stdout; stderr when stdout carries JSON). True if written."""
     try:
         plot(*args, path)
     except ImportError:
-        print(f"{lead}{NO_PLOT}")
+        print(f"{lead}{NO_PLOT}", file=file)
         return False
-    print(f"{lead}plot: {path}")
+    print(f"{lead}plot: {path}", file=file)
     return True
 
 
