@@ -147,24 +147,24 @@ def _steps(U, Y, S, TH, DE,
     ost = ode + 1
     for k in range(n):
         flags = 0
-        # ---- hold NaN inputs / schedule / theta, delta at their last valid values
+        # ---- hold NaN/Inf inputs / schedule / theta, delta at their last valid values
         for j in range(nu):
             v = U[k, j]
-            if v != v:
+            if not np.isfinite(v):
                 flags |= FLAG_HELD_INPUT
             else:
                 state[ou + j] = v
         for j in range(ns):
             v = S[k, j]
-            if v != v:
+            if not np.isfinite(v):
                 flags |= FLAG_HELD_INPUT
             else:
                 state[osl + j] = v
-        if TH[k] != TH[k] or TH[k] <= 0.0:
+        if not np.isfinite(TH[k]) or TH[k] <= 0.0:
             flags |= FLAG_HELD_INPUT
         else:
             state[oth] = TH[k]
-        if DE[k] != DE[k] or DE[k] <= 0.0:
+        if not np.isfinite(DE[k]) or DE[k] <= 0.0:
             flags |= FLAG_HELD_INPUT
         else:
             state[ode] = DE[k]
@@ -274,7 +274,7 @@ def _steps(U, Y, S, TH, DE,
             s = yh[i]
             fy = fac[cls[cy + i]]
             yk = Y[k, i]
-            if yk != yk:
+            if not np.isfinite(yk):          # NaN or +-Inf: no update from this sensor
                 update = False
                 res[i] = 0.0
                 out_res[k, i] = np.nan

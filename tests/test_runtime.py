@@ -112,6 +112,27 @@ def test_nan_input_is_held_and_flagged():
         np.testing.assert_array_equal(b.outputs[o], c.outputs[o])
 
 
+def test_inf_samples_are_treated_like_nan():
+    # ten +-Inf samples in a sensor, an input and theta: exactly the run with NaN there (the
+    # filter recovers), not NaN estimates from then on
+    db = names_db()
+    U, Y, S, TH, DE = inputs(db, n=60)
+    runs = []
+    for bad in (np.nan, np.inf):
+        Y2, U2, TH2 = Y.copy(), U.copy(), TH.copy()
+        Y2[20:30, 1] = bad
+        U2[33:35, 0] = -bad
+        TH2[40] = bad
+        runs.append(Estimator(db).run_arrays(U2, Y2, S, TH2, DE))
+    a, b = runs
+    np.testing.assert_array_equal(a.flags, b.flags)
+    assert np.all(b.flags[20:30] & FLAG_NO_UPDATE) and b.flags[33] & FLAG_HELD_INPUT and b.flags[40] & FLAG_HELD_INPUT
+    for o in a.outputs:
+        np.testing.assert_array_equal(a.outputs[o][np.isfinite(a.outputs[o])],
+                                      b.outputs[o][np.isfinite(a.outputs[o])])
+    assert np.all(np.isfinite(b.z_hat[30:]))
+
+
 def test_leading_nans_start_later():
     db = names_db()
     U, Y, S, TH, DE = inputs(db, n=20)
