@@ -166,9 +166,22 @@ def read_header(path) -> Log:
         except (KeyError, OSError) as e:
             raise LogError(f"{path}: damaged or incomplete log ({e})") from None
         attrs = {k: attr_str(f, k) for k in f.attrs if k not in ("format", "format_version")}
-    if time.size == 0:
-        raise LogError(f"{path}: the log is empty (no samples)")
+    check_time(path, time)
     return Log(time, {}, units, attrs=attrs, path=path)
+
+
+def check_time(path, time) -> None:
+    """A log's time column must be non-empty, finite and strictly increasing (LogError naming the
+    first bad sample otherwise): the filter's steps and the snapshots' windows rely on it."""
+    if time.ndim != 1 or time.size == 0:
+        raise LogError(f"{path}: the log is empty (no samples)")
+    bad = np.flatnonzero(~np.isfinite(time))
+    if bad.size:
+        raise LogError(f"{path}: time is not finite at sample {bad[0]} ({time[bad[0]]})")
+    back = np.flatnonzero(np.diff(time) <= 0)
+    if back.size:
+        k = back[0] + 1
+        raise LogError(f"{path}: time does not increase at sample {k} ({float(time[k - 1])!r} -> {float(time[k])!r})")
 
 
 def read_rows(head: Log, a: int, b: int) -> Log:
@@ -205,14 +218,16 @@ def _split_header(cell: str):
 def _from_columns(path, names, units, data) -> Log:
     if "time" not in names:
         raise LogError(f"{path}: no 'time' column")
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise LogError(f"{path}: duplicate column(s) {dup}: which one to use is ambiguous")
     cols = dict(zip(names, data))
     cunits = dict(zip(names, units))
     time = cols.pop("time")
     cunits.pop("time")
     chans = {k: v for k, v in cols.items() if not k.startswith("truth.")}
     truth = {k[6:]: v for k, v in cols.items() if k.startswith("truth.")}
-    if time.size == 0:
-        raise LogError(f"{path}: the log is empty (no samples)")
+    check_time(path, time)
     return Log(time, chans, {k: cunits[k] for k in chans}, truth,
                {k[6:]: cunits[k] for k in cunits if k.startswith("truth.")}, {}, path)
 

@@ -74,3 +74,21 @@ def test_csv_errors(tmp_path):
     (tmp_path / "notime.csv").write_text("Nf[rpm]\n1\n")
     with pytest.raises(LogError, match="no 'time' column"):
         read_log(tmp_path / "notime.csv")
+
+
+def test_duplicate_columns_and_bad_time_are_refused(tmp_path):
+    (tmp_path / "dup.csv").write_text("time[s],Wf[kg/s],Nf[rpm],Wf[kg/s]\n0,1,2,3\n0.1,1,2,3\n")
+    with pytest.raises(LogError, match=r"dup.csv: duplicate column\(s\) \['Wf'\]"):
+        read_log(tmp_path / "dup.csv")
+    for name, body, word in (("back.csv", "0,1\n0.2,1\n0.1,1\n", "does not increase at sample 2"),
+                             ("same.csv", "0,1\n0,1\n", "does not increase at sample 1"),
+                             ("inf.csv", "0,1\ninf,1\n", "is not finite at sample 1"),
+                             ("nan.csv", "nan,1\n0.1,1\n", "is not finite at sample 0")):
+        (tmp_path / name).write_text("time[s],Nf[rpm]\n" + body)
+        with pytest.raises(LogError, match=f"{name}: time {word}"):
+            read_log(tmp_path / name)
+    log = sample_log(20)
+    log.time[7] = log.time[6]                        # the same check on HDF5 logs
+    write_log(tmp_path / "t.h5", log)
+    with pytest.raises(LogError, match="t.h5: time does not increase at sample 7"):
+        read_header(tmp_path / "t.h5")
