@@ -81,7 +81,7 @@ def write_log(path, log: Log, compact: bool = False) -> None:
         f.attrs["format"] = FORMAT
         f.attrs["format_version"] = VERSION
         for k, v in log.attrs.items():
-            f.attrs[k] = v if isinstance(v, (int, float, str, np.number)) else json.dumps(v)
+            f.attrs[k] = v if isinstance(v, (int, float, str, np.number, np.bool_)) else json.dumps(v)
         f.create_dataset("time", data=np.asarray(log.time, dtype=np.float64))
         for grp_name, data, units in (("channels", log.channels, log.units),
                                       ("truth", log.truth, log.truth_units)):

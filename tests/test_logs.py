@@ -76,6 +76,17 @@ def test_csv_errors(tmp_path):
         read_log(tmp_path / "notime.csv")
 
 
+def test_a_log_read_back_can_be_written_again(tmp_path):
+    # attributes read from HDF5 come back as numpy scalars (a bool as numpy.bool_)
+    log = sample_log(20)
+    log.attrs.update({"fault_active": True, "engine": "ESN001", "flight_index": 3})
+    write_log(tmp_path / "a.h5", log)
+    again = read_log(tmp_path / "a.h5")
+    write_log(tmp_path / "b.h5", again)
+    back = read_log(tmp_path / "b.h5").attrs
+    assert bool(back["fault_active"]) is True and back["engine"] == "ESN001" and int(back["flight_index"]) == 3
+
+
 def test_duplicate_columns_and_bad_time_are_refused(tmp_path):
     (tmp_path / "dup.csv").write_text("time[s],Wf[kg/s],Nf[rpm],Wf[kg/s]\n0,1,2,3\n0.1,1,2,3\n")
     with pytest.raises(LogError, match=r"dup.csv: duplicate column\(s\) \['Wf'\]"):
