@@ -145,6 +145,12 @@ class GainDatabase:
         ex = np.array([self.exponents_of(c) for c in channels]).reshape(-1, 2)
         return th ** ex[:, 0] * de ** ex[:, 1]
 
+    def p_spans(self) -> np.ndarray:
+        """(np,) span hi - lo of every scheduling variable's axis (trim grid, else dynamics grid,
+        else 1): the scale of "steady" and of operating regimes."""
+        ax = {a.name: a for a in self.dyn_grid.axes + self.trim_grid.axes}
+        return np.array([ax[p].hi - ax[p].lo if p in ax else 1.0 for p in self.names["p"]])
+
     def operating_point(self, S, theta, delta) -> np.ndarray:
         """Scheduling variables p (n, np) from the raw schedule channels S (n, np) and theta,
         delta (n,) (the inlet ratios T/T_std, P/P_std), as the runtime computes them."""

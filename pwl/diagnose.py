@@ -295,7 +295,6 @@ class Decision:
     statistic: float = float("nan")
     detail: str = ""
     missing: str = ""
-    h_hat: dict = field(default_factory=dict)
 
 
 CSV_FIELDS = ("engine", "flight", "label", "status", "detected", "class", "kind", "onset", "magnitude",
@@ -402,8 +401,7 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
     number = np.array(fidx if min(fidx, default=-1) >= 0 and len(set(fidx)) == n else range(n), float)
     for k in range(n):
         r = es.flights[k]
-        dec = Decision(es.engine, int(number[k]), r.label, r.source, "ok",
-                       h_hat=dict(zip(es.h_names, es.h_hat[k])) if np.isfinite(es.h_hat[k]).all() else {})
+        dec = Decision(es.engine, int(number[k]), r.label, r.source, "ok")
         if not present[k].any():
             dec.status = "no steady snapshot"
             rows.append(dec)
@@ -456,12 +454,6 @@ def group_engines(records: list[FlightRecord]) -> dict[str, list[FlightRecord]]:
     return {k: out[k] for k in sorted(out, key=_natural)}
 
 
-def regime_spans(db: GainDatabase) -> np.ndarray:
-    """Scale of every scheduling variable for regime grouping: its trim (or dynamics) axis span."""
-    ax = {a.name: a for a in db.dyn_grid.axes + db.trim_grid.axes}
-    return np.array([ax[p].hi - ax[p].lo if p in ax else 1.0 for p in db.names["p"]])
-
-
 def prepare(records: list[FlightRecord], db: GainDatabase) -> tuple[Signatures, np.ndarray]:
     """Signatures of the database and the operating regimes of ``records`` (sets their windows)."""
     if not records:
@@ -471,7 +463,7 @@ def prepare(records: list[FlightRecord], db: GainDatabase) -> tuple[Signatures, 
         if r.snapshot.p_names != list(db.names["p"]) or not set(sig.channels) <= set(r.snapshot.channels):
             raise DiagnosisError(f"{r.source}: its snapshots ({r.snapshot.p_names}, {r.snapshot.channels}) "
                                  f"do not match the database {db.path}")
-    centers = assign_regimes(records, regime_spans(db))
+    centers = assign_regimes(records, db.p_spans())
     if not len(centers):
         raise DiagnosisError(f"no steady operating regime common to the flights ({len(records)} flights, "
                              f"{sum(len(r.snapshot) for r in records)} steady windows)")

@@ -326,17 +326,11 @@ class Estimator:
                 "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")}
 
     # ---- steady-state snapshots (for diagnostics) --------------------------------------------
-    @property
-    def snapshot_channels(self) -> list[str]:
-        """The raw channels a snapshot averages: inputs, sensed outputs, schedule, theta/delta."""
-        return self.input_channels
-
     def _snapshot_accumulator(self, dt) -> SnapshotAccumulator:
+        """Snapshots average the raw input channels (inputs, sensed outputs, schedule, theta/delta)."""
         db = self.db
-        ax = {a.name: a for a in db.trim_grid.axes + db.dyn_grid.axes}
-        spans = [ax[p].hi - ax[p].lo if p in ax else 1.0 for p in db.names["p"]]
         dt = dt if np.isfinite(dt) and dt > 0 else db.dt
-        return SnapshotAccumulator(self.snapshot_channels, db.names["p"], spans, dt,
+        return SnapshotAccumulator(self.input_channels, db.names["p"], db.p_spans(), dt,
                                    {o: self.names[o] for o in SNAPSHOT_OUTPUTS}, self.steady)
 
     def _accumulate(self, acc, start, res, arrays):
@@ -476,9 +470,9 @@ def run_many(db_path, log_paths, outdir, workers: int | None = None, csv: bool =
     """
     from concurrent.futures import ProcessPoolExecutor
 
-    os.makedirs(outdir, exist_ok=True)
     logs = [os.fspath(p) for p in log_paths]
     outs = [output_path(p, outdir, csv, n) for p, n in zip(logs, result_names(logs, names))]
+    os.makedirs(outdir, exist_ok=True)
     workers = max(1, min(len(logs), workers or os.cpu_count() or 1))
     results = []
     if workers == 1:

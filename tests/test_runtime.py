@@ -1,4 +1,5 @@
 """The numba runtime against the plain numpy/scipy reference; streaming vs batch; bad logs."""
+import os
 import numpy as np
 import pytest
 
@@ -312,3 +313,12 @@ def test_run_folder_takes_only_flight_logs(tmp_path):
     (tmp_path / "junk.h5").write_bytes(b"not hdf5")
     assert expand([str(tmp_path)]) == [str(tmp_path / "a.h5")]
     assert expand([str(tmp_path / "db.h5")]) == [str(tmp_path / "db.h5")]  # named files are kept
+
+
+def test_result_names_keep_folders_and_refuse_collisions():
+    from pwl.estimator import result_names
+    assert result_names(["a/f1.h5", "b/f2.h5"]) == ["f1.h5", "f2.h5"]
+    assert result_names(["x/ESN1/f.h5", "x/ESN2/f.h5"]) == [os.path.join("ESN1", "f.h5"), os.path.join("ESN2", "f.h5")]
+    assert result_names(["q.h5"], ["ESN9/q.h5"]) == ["ESN9/q.h5"]
+    with pytest.raises(ValueError, match="same results file"):
+        result_names(["d1/f.h5", "d1/f.csv"])

@@ -83,14 +83,8 @@ def run(args) -> int:
             f"{counts['trim_outside']} outside the grid -> {out}")
         print(f"[{done}/{total}] {log}: {status}", file=sys.stderr, flush=True)
 
-    from ..estimator import result_names
     if len(set(names)) != len(names):       # files given directly with the same name
         names = None
-    try:
-        result_names(logs, names)
-    except ValueError as e:
-        print(f"pwl run: {e}", file=sys.stderr)
-        return 2
     results = run_many(args.database, logs, args.outdir, args.workers, args.csv, progress, online=args.online,
                        zones=args.zones, names=names)
     failed = [r for r in results if r[3]]
