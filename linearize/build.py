@@ -27,6 +27,7 @@ from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_complet
 import numpy as np
 
 from pwl.database import COMPUTED, EXTRAPOLATED, FILLED, REPLACED, Correction, GainDatabase
+from pwl.errors import PwlError
 from pwl.grid import Axis, Grid
 from pwl.runtime import augment
 
@@ -38,7 +39,7 @@ from .spec import BuildSpec, SpecError, per_channel
 from .tuners import optimal_tuners, select_subset
 
 
-class BuildError(RuntimeError):
+class BuildError(PwlError, RuntimeError):
     """A build that cannot produce a valid database (names the phase and the points)."""
 
 

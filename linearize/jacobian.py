@@ -11,12 +11,14 @@ from __future__ import annotations
 import numpy as np
 from scipy.linalg import expm
 
+from pwl.errors import PwlError
+
 from .plant import perturbation_sizes
 
 MATRICES = ("A", "B", "C", "D", "F", "G", "L", "M", "N")
 
 
-class LinearizationError(RuntimeError):
+class LinearizationError(PwlError, RuntimeError):
     """The plant could not be evaluated around this point (names the variable)."""
 
 

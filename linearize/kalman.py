@@ -13,8 +13,10 @@ from __future__ import annotations
 import numpy as np
 from scipy.linalg import solve_discrete_are
 
+from pwl.errors import PwlError
 
-class GainError(ValueError):
+
+class GainError(PwlError, ValueError):
     """No usable steady-state gain (undetectable pair, DARE failure, residual or stability check)."""
 
 

@@ -10,12 +10,14 @@ import importlib
 
 import numpy as np
 
+from pwl.errors import PwlError
+
 KINDS = ("x", "u", "y", "z", "h")
 REQUIRED = ("name", "x_names", "u_names", "y_names", "z_names", "h_names", "p_names", "units",
             "environment", "trim", "evaluate", "parameters")
 
 
-class PlantProtocolError(TypeError):
+class PlantProtocolError(PwlError, TypeError):
     """An object that does not satisfy the Plant protocol (names what is missing or wrong)."""
 
 

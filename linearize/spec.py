@@ -44,10 +44,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from pwl.errors import PwlError
 from pwl.grid import POLICIES, Axis, AxisError, Grid
 
 
-class SpecError(ValueError):
+class SpecError(PwlError, ValueError):
     """A build spec that cannot be used; names the file and the key."""
 
 

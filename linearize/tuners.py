@@ -28,12 +28,13 @@ import itertools
 import numpy as np
 from scipy.linalg import solve_discrete_lyapunov
 
+from pwl.errors import PwlError
 from pwl.runtime import augment
 
 from .kalman import GainError, steady_state_gain
 
 
-class TunerError(ValueError):
+class TunerError(PwlError, ValueError):
     """No tuner choice gives a usable filter (names the reason)."""
 
 

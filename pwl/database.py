@@ -18,6 +18,7 @@ import numpy as np
 from . import __version__
 from .grid import POLICIES, Axis, AxisError, Grid, check_breakpoints
 from .h5io import atomic_h5, attr_str, read_strings, write_strings
+from .errors import PwlError
 
 FORMAT = "pwl-gain-database"
 VERSION = 1
@@ -29,7 +30,7 @@ COMPUTED, FILLED, EXTRAPOLATED = 0, 1, 2   # /trim/status
 REPLACED = 1                               # /dynamics/status, /kalman/status (donor index recorded)
 
 
-class DatabaseError(ValueError):
+class DatabaseError(PwlError, ValueError):
     """A gain database that cannot be used. The message names the file and the dataset."""
 
 

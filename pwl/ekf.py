@@ -41,12 +41,13 @@ from numba import njit
 
 from .covariance import chol_solve_right
 from .grid import Axis, AxisError, Grid, locate
+from .errors import PwlError
 
 RECORD_FORMAT = "pwl-zones"
 RECORD_VERSION = 1
 
 
-class ZoneError(ValueError):
+class ZoneError(PwlError, ValueError):
     """A zones record that cannot be used (names what is wrong)."""
 
 

@@ -19,12 +19,13 @@ from .runtime import (FLAG_DYN_OUTSIDE, FLAG_HELD_INPUT, FLAG_NO_UPDATE, FLAG_NO
                       FLAG_TRIM_OUTSIDE, PackedModel, filter_loop, hat_health)
 from .snapshots import SNAPSHOT_OUTPUTS, SnapshotAccumulator, Snapshots, SteadyConfig
 from .tables import LAWS, AdaptiveTable, TableError
+from .errors import PwlError
 
 OUTPUTS = ("x_hat", "q_hat", "h_hat", "y_hat", "residual", "z_hat")
 BIAS_PREFIX = "bias_"   # bias tables are stored as /tables/bias_<channel>
 
 
-class EnvelopeError(ValueError):
+class EnvelopeError(PwlError, ValueError):
     """The operating point left the grid and the database's policy is ``error``."""
 
 

@@ -15,13 +15,15 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from .errors import PwlError
+
 #: Out-of-range policies. ``clip`` holds the point at the grid edge (counted and flagged),
 #: ``extrapolate`` extends the edge cells linearly (flagged too); ``error`` is a Python-level
 #: policy (the runtime stops with a named error) and behaves as ``clip`` inside kernels.
 POLICIES = ("clip", "extrapolate", "error")
 
 
-class AxisError(ValueError):
+class AxisError(PwlError, ValueError):
     """An axis that is not a valid breakpoint vector (names the axis)."""
 
 

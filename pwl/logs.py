@@ -21,12 +21,13 @@ import h5py
 import numpy as np
 
 from .h5io import atomic_h5, attr_str
+from .errors import PwlError
 
 FORMAT = "pwl-flight-log"
 VERSION = 1
 
 
-class LogError(ValueError):
+class LogError(PwlError, ValueError):
     """A log file that cannot be used; the message names the file and the channel."""
 
 

@@ -29,10 +29,12 @@ import os
 
 import numpy as np
 
+from .errors import PwlError
+
 COMPONENT_PREFIXES = ("fan", "lpc", "hpc", "hpt", "lpt")
 
 
-class ScoreError(ValueError):
+class ScoreError(PwlError, ValueError):
     """A diagnosis or truth file that cannot be scored (names the file and the column)."""
 
 

@@ -28,9 +28,10 @@ import numpy as np
 
 from .database import GainDatabase
 from .interp import interpolate
+from .errors import PwlError
 
 
-class DiagnosisError(ValueError):
+class DiagnosisError(PwlError, ValueError):
     """A database or results file that the diagnostics cannot use (the message says why)."""
 
 

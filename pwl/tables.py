@@ -42,6 +42,7 @@ from .database import read_record, write_record
 from .grid import Axis, Grid, locate
 from .h5io import atomic_h5
 from .interp import corner_weights, interp_many
+from .errors import PwlError
 
 #: gain-law codes of the kernels
 LAW_EXACT = 0
@@ -53,7 +54,7 @@ RECORD_FORMAT = "pwl-adaptive-table"
 RECORD_VERSION = 1
 
 
-class TableError(ValueError):
+class TableError(PwlError, ValueError):
     """An adaptive table or table record that cannot be used (the message says what is wrong)."""
 
 

@@ -1,6 +1,7 @@
 """The ``pwl`` command. Each subcommand lives in its own module ``pwl.cli.<name>`` defining
-``HELP`` (one line), ``add_arguments(parser)`` and ``run(args) -> int``; modules are imported only
-when their command runs, so ``pwl info`` never loads the builder or the plant models.
+``HELP`` (one line), ``add_arguments(parser)`` and ``run(args) -> int``; a module imports its heavy
+dependencies (the builder, the plant models, matplotlib) inside ``run``, so ``pwl info`` never
+loads them.
 """
 from __future__ import annotations
 
@@ -26,39 +27,58 @@ COMMANDS = {
 }
 
 
-def _available():
-    """Commands whose module exists (a command is listed once it is implemented)."""
-    out = {}
-    for name, mod in COMMANDS.items():
-        if importlib.util.find_spec(mod) is not None:
-            out[name] = mod
-    return out
+def _parser(cmds):
+    """The argument parser: one line of help per command (each module's HELP; the modules import
+    their heavy dependencies only inside ``run``)."""
+    from .. import __version__
+    from ..errors import EXIT_CODES
+
+    codes = "; ".join(f"{k} {v}" for k, v in EXIT_CODES.items())
+    parser = argparse.ArgumentParser(
+        prog="pwl", description="Piecewise-linear self-tuning engine models.",
+        epilog=f"Exit codes: {codes}. 'pwl COMMAND -h' describes a command.")
+    parser.add_argument("--version", action="version", version=f"pwl {__version__}")
+    parser.add_argument("--debug", action="store_true",
+                        help="show the Python traceback of any error (default: a one-line message)")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for name, modname in cmds.items():
+        mod = importlib.import_module(modname)
+        p = sub.add_parser(name, help=mod.HELP, description=mod.HELP)
+        mod.add_arguments(p)
+        p.set_defaults(_run=mod.run)
+    return parser
 
 
 def main(argv=None) -> int:
+    """The ``pwl`` entry point: the command's exit code; named errors (:class:`pwl.errors.PwlError`)
+    and file-system errors become one line on stderr and exit 2, anything else (a bug) one line and
+    exit 3; ``--debug`` re-raises instead."""
+    from ..errors import EXIT_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED, PwlError
+
     argv = sys.argv[1:] if argv is None else list(argv)
-    cmds = _available()
-    parser = argparse.ArgumentParser(prog="pwl", description="Piecewise-linear self-tuning engine models.")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    sub.required = True
-    chosen = argv[0] if argv and argv[0] in cmds else None
-    for name, modname in cmds.items():
-        if name == chosen:
-            mod = importlib.import_module(modname)
-            p = sub.add_parser(name, help=mod.HELP, description=mod.HELP)
-            mod.add_arguments(p)
-            p.set_defaults(_run=mod.run)
-        else:
-            sub.add_parser(name, help=f"(pwl {name} -h)")
-    args = parser.parse_args(argv)
+    args = _parser(COMMANDS).parse_args(argv)
     try:
         return int(args._run(args) or 0)
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
-        return 130
-    except (ValueError, OSError) as e:  # our named errors derive from these
-        print(f"pwl {args.command}: error: {e}", file=sys.stderr)
-        return 2
+        return EXIT_INTERRUPTED
+    except (PwlError, OSError) as e:
+        if args.debug:
+            raise
+        print(f"pwl {args.command}: error: {_one_line(e)}", file=sys.stderr)
+        return EXIT_INPUT
+    except Exception as e:  # a bug: say so in one line, the traceback on request
+        if args.debug:
+            raise
+        print(f"pwl {args.command}: internal error: {type(e).__name__}: {_one_line(e)} "
+              f"(rerun with 'pwl --debug {args.command} ...' for the traceback; please report it)",
+              file=sys.stderr)
+        return EXIT_INTERNAL
+
+
+def _one_line(e: BaseException) -> str:
+    return " ".join(str(e).split()) or type(e).__name__
 
 
 if __name__ == "__main__":
