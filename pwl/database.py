@@ -17,11 +17,11 @@ import numpy as np
 
 from . import __version__
 from .grid import POLICIES, Axis, AxisError, Grid, check_breakpoints
-from .h5io import atomic_h5, attr_str, read_strings, write_strings
+from .h5io import SealError, atomic_h5, attr_str, check_seal, file_digest, read_strings, write_strings
 from .errors import PwlError
 
 FORMAT = "pwl-gain-database"
-VERSION = 1
+VERSION = 2   # 2: the file is sealed (pwl.h5io); version 1 files (unsealed) are still read
 KINDS = ("x", "u", "y", "z", "h", "q", "p")
 MATRICES = ("A", "B", "C", "D", "F", "G", "L", "M", "N")
 
@@ -58,6 +58,18 @@ class BadAxisError(DatabaseError):
     pass
 
 
+class CorruptError(DatabaseError):
+    """The file does not match its seal, or HDF5 cannot read it: corrupted or truncated."""
+
+
+class NonFiniteError(DatabaseError):
+    pass
+
+
+class UnstableGainError(DatabaseError):
+    pass
+
+
 @dataclass
 class Correction:
     """Parameter correction v_c = v / (theta**a * delta**b), theta = T_in/T_std, delta = P_in/P_std.
@@ -86,6 +98,10 @@ class GainDatabase:
     - ``kalman``: K D + (na, ny) update gain, P D + (na, na) a-priori covariance, and the
       covariances used, Q D + (na, na), R D + (ny, ny) (noise scales with the operating point);
       ``kalman_status``/``kalman_donor`` as for dynamics
+    - ``log_channels``: every log channel the filter reads (inputs, sensed outputs, schedule and
+      theta/delta channels) -> (unit, lo, hi): the plant's unit and plausible range (+-inf when
+      unbounded); None for databases built before it was recorded (then units come from
+      ``names``/``units`` and no range is checked)
     - ``attrs``: free metadata (model, model_parameters, spec, tuner_method, tuner_metric, ...)
     - ``zones``: optional record; ``tables``: name -> record; a record is (arrays, attrs)
     """
@@ -109,7 +125,11 @@ class GainDatabase:
     attrs: dict = field(default_factory=dict)
     zones: tuple[dict, dict] | None = None
     tables: dict[str, tuple[dict, dict]] = field(default_factory=dict)
+    log_channels: dict[str, tuple[str, float, float]] | None = None
     path: str = "<memory>"
+    digest: str = ""   # sha256 of the file it was read from ("" in memory): its identity
+    sealed: bool = False   # read from a sealed file (pwl.h5io)
+    format_version: int = VERSION
 
     # ---- sizes -------------------------------------------------------------------------------
     def n(self, kind: str) -> int:
@@ -226,8 +246,44 @@ class GainDatabase:
                 raise ShapeError(f"{where}: dataset /{path} has dtype {a.dtype}, expected float64")
             if kind != "f" and a.dtype.kind != "i":
                 raise ShapeError(f"{where}: dataset /{path} has dtype {a.dtype}, expected integer")
+            if kind == "f" and not np.all(np.isfinite(a)):
+                bad = np.argwhere(~np.isfinite(a))
+                raise NonFiniteError(f"{where}: dataset /{path} has {len(bad)} non-finite values "
+                                     f"(first at index {tuple(int(i) for i in bad[0])}: {a[tuple(bad[0])]})")
         if not (np.isfinite(self.dt) and self.dt > 0):
             raise DatabaseError(f"{where}: /dynamics attribute dt = {self.dt} is not a positive number")
+        scale = np.array([float(v) for _, _, v in self.schedule])
+        if not np.all(np.isfinite(scale) & (scale != 0)):
+            raise DatabaseError(f"{where}: /schedule/scale {scale.tolist()} must be finite and non-zero")
+        if self.correction is not None and not all(
+                np.isfinite(v) and v > 0 for v in (self.correction.T_std, self.correction.P_std)):
+            raise DatabaseError(f"{where}: /correction T_std, P_std must be positive numbers")
+        for c, (unit, lo, hi) in (self.log_channels or {}).items():
+            if np.isnan(lo) or np.isnan(hi) or lo > hi:
+                raise DatabaseError(f"{where}: /log_channels range of {c!r} is [{lo}, {hi}]")
+        self.check_gains()
+
+    def gain_radius(self) -> np.ndarray:
+        """Spectral radius of the error dynamics (I - K C_a) A_a of the augmented system at every
+        dynamics node: D-shaped array, < 1 where the stored gain is stable."""
+        from .runtime import augment   # runtime imports this module
+
+        aug = augment(self.dynamics, self.tuner["V_pinv"])
+        K = self.kalman["K"]
+        closed = (np.eye(self.na) - K @ aug["C"]) @ aug["A"]
+        return np.abs(np.linalg.eigvals(closed.reshape((-1,) + closed.shape[-2:]))).max(axis=-1) \
+            .reshape(self.dyn_grid.shape)
+
+    def check_gains(self) -> None:
+        """Every stored gain gives strictly stable error dynamics (the builder's own check, redone
+        at every open: a gain changed after the build is refused, naming the node)."""
+        rho = self.gain_radius()
+        if not np.all(rho < 1.0):
+            i = np.unravel_index(int(np.argmax(rho)), rho.shape)
+            at = ", ".join(f"{a.name} = {a.values[j]:g}" for a, j in zip(self.dyn_grid.axes, i))
+            raise UnstableGainError(f"{self.path}: /kalman/K gives unstable error dynamics at "
+                                    f"{int(np.sum(rho >= 1))} nodes (worst at {at}: spectral radius "
+                                    f"{rho[i]:.6g})")
 
     # ---- writing -----------------------------------------------------------------------------
     def save(self, path) -> None:
@@ -265,6 +321,12 @@ class GainDatabase:
             for path_, kind, _ in self.schema():
                 a = np.asarray(self._get(path_))
                 f.create_dataset(path_, data=a.astype({"f": np.float64, "i1": np.int8, "i8": np.int64}[kind]))
+            if self.log_channels is not None:
+                g = f.create_group("log_channels")
+                write_strings(g, "name", list(self.log_channels))
+                write_strings(g, "unit", [u for u, _, _ in self.log_channels.values()])
+                g.create_dataset("range", data=np.array([[lo, hi] for _, lo, hi in self.log_channels.values()],
+                                                        dtype=np.float64).reshape(-1, 2))
             if self.zones is not None:
                 write_record(f.create_group("zones"), *self.zones)
             if self.tables:
@@ -279,12 +341,28 @@ class GainDatabase:
         path = os.fspath(path)
         if not os.path.exists(path):
             raise DatabaseError(f"{path}: no such file")
+        if os.path.isdir(path):
+            raise DatabaseError(f"{path}: is a folder, not a gain database file")
+        try:
+            digest = check_seal(path)
+        except SealError as e:
+            raise CorruptError(str(e)) from None
         if not h5py.is_hdf5(path):
             raise NotHDF5Error(f"{path}: not an HDF5 file")
         try:
-            f = h5py.File(path, "r")
-        except OSError as e:
-            raise NotHDF5Error(f"{path}: cannot be read as HDF5 ({e})") from None
+            db = cls._open(path, sealed=digest is not None)
+        except DatabaseError:
+            raise
+        except Exception as e:  # anything HDF5 or h5py raise on a damaged unsealed file
+            raise CorruptError(f"{path}: damaged file, cannot be read ({type(e).__name__}: "
+                               f"{' '.join(str(e).split())})") from None
+        db.digest = digest or file_digest(path)
+        db.sealed = digest is not None
+        return db
+
+    @classmethod
+    def _open(cls, path, sealed: bool):
+        f = h5py.File(path, "r")
         with f:
             fmt = attr_str(f, "format")
             if fmt != FORMAT:
@@ -295,12 +373,13 @@ class GainDatabase:
                                    f"({VERSION}); upgrade pwl")
             if ver < 1:
                 raise VersionError(f"{path}: invalid format version {ver}")
+            if ver >= 2 and not sealed:
+                raise CorruptError(f"{path}: format version {ver} files are sealed, this one's seal "
+                                   f"is missing (corrupted user block, or edited outside pwl)")
             try:
                 return cls._read(f, path)
             except KeyError as e:
                 raise MissingDataError(f"{path}: {e.args[0] if e.args else 'a dataset'} is missing") from None
-            except OSError as e:
-                raise DatabaseError(f"{path}: damaged file ({e})") from None
 
     @classmethod
     def _read(cls, f, path):
@@ -339,10 +418,11 @@ class GainDatabase:
         dyn = need("dynamics")
         db = cls.__new__(cls)
         db.names, db.units, db.schedule, db.correction = names, units, schedule, correction
-        db.trim_grid, db.dyn_grid, db.path = grids["trim"], grids["dynamics"], path
+        db.trim_grid, db.dyn_grid, db.path, db.digest, db.sealed = grids["trim"], grids["dynamics"], path, "", False
         db.dt = float(dyn.attrs.get("dt", np.nan))
         db.attrs = json.loads(attr_str(f, "attrs_json", "{}"))
         db.attrs.setdefault("created", attr_str(f, "created", ""))
+        db.format_version = int(f.attrs.get("format_version", VERSION))
         db.trim = {k: need(f"trim/{k}")[()] for k in "xuyz"}
         db.trim_status = need("trim/status")[()]
         db.dynamics = {k: need(f"dynamics/{k}")[()] for k in MATRICES}
@@ -350,6 +430,13 @@ class GainDatabase:
         db.tuner = {k: need(f"tuner/{k}")[()] for k in ("V", "V_pinv", "h_ref")}
         db.kalman = {k: need(f"kalman/{k}")[()] for k in ("K", "P", "Q", "R")}
         db.kalman_status, db.kalman_donor = need("kalman/status")[()], need("kalman/donor")[()]
+        db.log_channels = None
+        if "log_channels" in f:
+            rng = np.asarray(need("log_channels/range")[()], dtype=np.float64).reshape(-1, 2)
+            cn, cu = read_strings(need("log_channels/name")), read_strings(need("log_channels/unit"))
+            if not len(cn) == len(cu) == len(rng):
+                raise ShapeError(f"{path}: /log_channels name, unit and range differ in length")
+            db.log_channels = {n: (u, float(lo), float(hi)) for n, u, (lo, hi) in zip(cn, cu, rng)}
         db.zones = read_record(f["zones"]) if "zones" in f else None
         db.tables = {k: read_record(g) for k, g in f["tables"].items()} if "tables" in f else {}
         db.validate()
@@ -359,7 +446,8 @@ class GainDatabase:
     def summary(self) -> str:
         """A readable multi-line summary (what ``pwl info`` prints)."""
         lines = [f"gain database {self.path}",
-                 f"  format {FORMAT} v{VERSION}, model {self.attrs.get('model', '?')}, "
+                 f"  format {FORMAT} v{self.format_version}{'' if self.sealed else ' (unsealed)'}, "
+                 f"model {self.attrs.get('model', '?')}, "
                  f"created {self.attrs.get('created', '?')}, dt = {self.dt:g} s, "
                  f"out-of-range policy {self.policy}"]
         if os.path.exists(self.path):
@@ -390,6 +478,12 @@ class GainDatabase:
             lines.append(f"  gain zones: {self.zones[1].get('k', '?')}")
         if self.tables:
             lines.append(f"  adaptive tables: {', '.join(self.tables)}")
+        if self.log_channels:
+            lines.append("  log channels (unit, plausible range; values outside are flagged and held):")
+            for c, (u, lo, hi) in self.log_channels.items():
+                lines.append(f"    {c:<8} [{u}] {lo:g} .. {hi:g}")
+        if self.digest:
+            lines.append(f"  sha256 {self.digest}")
         return "\n".join(lines)
 
 

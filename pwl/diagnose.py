@@ -49,7 +49,7 @@ import numpy as np
 from scipy import stats
 
 from .database import GainDatabase
-from .h5io import attr_str
+from .h5io import SealError, attr_str, check_seal
 from .signatures import DiagnosisError, Signatures
 from .snapshots import Snapshots
 
@@ -117,6 +117,8 @@ class FlightRecord:
     label: str
     snapshot: Snapshots
     database: str | None = None
+    database_digest: str = ""
+    mode: str = ""
     windows: dict = field(default_factory=dict)     # regime -> window index (assign_regimes)
 
 
@@ -132,6 +134,7 @@ def read_flight(path) -> FlightRecord:
     flight_10)."""
     path = os.fspath(path)
     try:
+        check_seal(path)
         with h5py.File(path, "r") as f:
             if attr_str(f, "format") != "pwl-estimates":
                 raise DiagnosisError(f"{path}: not a pwl results file")
@@ -141,12 +144,14 @@ def read_flight(path) -> FlightRecord:
             engine = attr_str(f, "engine") or os.path.basename(os.path.dirname(os.path.abspath(path)))
             ftime = attr_str(f, "flight_time") or ""
             fidx = f.attrs.get("flight_index", -1)
-            db = attr_str(f, "database")
-    except OSError as e:
-        raise DiagnosisError(f"{path}: unreadable results file ({e})") from None
+            prov = [attr_str(f, k) or "" for k in ("database", "database_digest", "mode")]
+    except (DiagnosisError, SealError) as e:
+        raise DiagnosisError(str(e)) from None
+    except Exception as e:  # h5py raises many kinds on a damaged file
+        raise DiagnosisError(f"{path}: unreadable results file ({type(e).__name__}: {e})") from None
     name = os.path.basename(path)
     label = name.split(".estimates")[0]
-    return FlightRecord(str(engine), (str(ftime), int(fidx), _natural(name)), path, label, snaps, db)
+    return FlightRecord(str(engine), (str(ftime), int(fidx), _natural(name)), path, label, snaps, *prov)
 
 
 def assign_regimes(records: list[FlightRecord], spans, radius: float = 0.35, min_share: float = 0.3) -> np.ndarray:

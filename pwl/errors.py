@@ -25,3 +25,7 @@ EXIT_CODES = {EXIT_OK: "success", EXIT_FINDINGS: "finished with findings (fault 
 
 class PwlError(Exception):
     """Base of every named, user-facing pwl error (the message names what is wrong)."""
+
+
+class UsageError(PwlError, ValueError):
+    """Options or arguments that cannot be used together (the message says which and why)."""

@@ -14,12 +14,12 @@ import numpy as np
 from .database import GainDatabase
 from .grid import Axis, Grid
 from .h5io import atomic_h5, write_strings
-from .logs import Log, read_header, read_log, read_rows
-from .runtime import (FLAG_DYN_OUTSIDE, FLAG_HELD_INPUT, FLAG_NO_UPDATE, FLAG_NOT_STARTED,
-                      FLAG_TRIM_OUTSIDE, PackedModel, filter_loop, hat_health)
+from .logs import Log, LogError, read_header, read_log, read_rows, resample, sample_interval
+from .runtime import (FLAG_DYN_OUTSIDE, FLAG_HELD_INPUT, FLAG_IMPLAUSIBLE, FLAG_NO_UPDATE,
+                      FLAG_NOT_STARTED, FLAG_TRIM_OUTSIDE, PackedModel, filter_loop, hat_health)
 from .snapshots import SNAPSHOT_OUTPUTS, SnapshotAccumulator, Snapshots, SteadyConfig
+from .errors import PwlError, UsageError
 from .tables import LAWS, AdaptiveTable, TableError
-from .errors import PwlError
 
 OUTPUTS = ("x_hat", "q_hat", "h_hat", "y_hat", "residual", "z_hat")
 BIAS_PREFIX = "bias_"   # bias tables are stored as /tables/bias_<channel>
@@ -62,7 +62,9 @@ class Result:
                 "held_input": int(np.count_nonzero(f & FLAG_HELD_INPUT)),
                 "trim_outside": int(np.count_nonzero(f & FLAG_TRIM_OUTSIDE)),
                 "dyn_outside": int(np.count_nonzero(f & FLAG_DYN_OUTSIDE)),
-                "not_started": int(np.count_nonzero(f & FLAG_NOT_STARTED))}
+                "not_started": int(np.count_nonzero(f & FLAG_NOT_STARTED)),
+                "implausible": int(np.count_nonzero(f & FLAG_IMPLAUSIBLE)),
+                "updated": int(np.count_nonzero((f & (FLAG_NO_UPDATE | FLAG_NOT_STARTED)) == 0))}
 
     def save(self, path) -> None:
         """HDF5 (atomic) or, for a ``.csv`` path, CSV with ``output.name`` columns."""
@@ -141,9 +143,10 @@ class Estimator:
     """
 
     def __init__(self, db, q0=None, tune: bool = True, bias: dict | None = None, online: bool = False,
-                 health_std: bool = True, zones: bool = False):
+                 health_std: bool = True, zones: bool = False, resample: bool = False):
         self.db = db if isinstance(db, GainDatabase) else GainDatabase.open(db)
         self.tune = tune
+        self.resample = resample
         zt = None
         if zones:
             from .ekf import ZoneTable
@@ -160,7 +163,10 @@ class Estimator:
         for (c, corr, scale), pn, pu in zip(db.schedule, db.names["p"], db.units["p"]):
             if not corr and scale == 1.0:
                 units.setdefault(c, pu)
-        self.channel_units = units
+        lc = db.log_channels or {}
+        self.channel_units = units | {c: u for c, (u, _, _) in lc.items()}
+        self.ranges = {c: (lo, hi) for c, (_, lo, hi) in lc.items()}
+        self._limits = self._column_limits()
         self._set_bias(bias or {})
         self.steady = SteadyConfig()
         self.reset(q0)
@@ -229,6 +235,8 @@ class Estimator:
         self.t_idx = np.zeros(len(self.pm.t_pidx), dtype=np.int64)
         self.d_idx = np.zeros(len(self.pm.d_pidx), dtype=np.int64)
         self._b_idx[:] = 0
+        self.missing = dict.fromkeys(self.input_channels, 0)
+        self.implausible = dict.fromkeys(self.input_channels, 0)
 
     @property
     def covariance(self) -> np.ndarray | None:
@@ -258,6 +266,7 @@ class Estimator:
         one = np.ones(n)
         TH = one if TH is None else np.ascontiguousarray(TH, dtype=np.float64)
         DE = one if DE is None else np.ascontiguousarray(DE, dtype=np.float64)
+        (U, Y, S, TH, DE), implausible = self._screen((U, Y, S, TH, DE))
         nx, nu, ny, nz, nq, nh = self.pm.dims
         if out is None or any(o not in out or out[o].shape != (n, len(self.names[o])) for o in self.names):
             out = {o: np.empty((n, len(self.names[o]))) for o in self.names}
@@ -277,9 +286,61 @@ class Estimator:
                     pm.online, pm.p_tab, self.cov, db.tuner["V_pinv"], pm.z_gains, pm.z_labels,
                     out["x_hat"], out["q_hat"], out["y_hat"], out["residual"], out["z_hat"],
                     out.get("bias_hat", np.empty((n, 0))), out.get("h_std", np.empty((n, 0))), flags)
+        if implausible is not None:
+            flags[implausible] |= FLAG_IMPLAUSIBLE
         hat_health(out["q_hat"], db.tuner["V_pinv"], db.tuner["h_ref"], out["h_hat"])
         t = np.arange(n, dtype=np.float64) * db.dt if time is None else np.asarray(time, dtype=np.float64)
         return Result(t, out, flags, self.names)
+
+    # ---- what reaches the kernel: plausible values only ----------------------------------------
+    def _columns(self) -> list[list[str]]:
+        """The log channel of every column of the kernel's U, Y, S, TH, DE."""
+        pm = self.pm
+        th = [pm.theta_channel, pm.delta_channel] if pm.theta_channel else [None, None]
+        return [list(self.db.names["u"]), list(self.db.names["y"]), list(pm.schedule_channels),
+                [th[0]], [th[1]]]
+
+    def _column_limits(self):
+        """(lo, hi) arrays per kernel array (U, Y, S, TH, DE) from the plausible ranges, in the
+        kernel's units (theta, delta: divided by T_std, P_std); None where nothing is bounded."""
+        corr = self.db.correction
+        std = [1.0, 1.0, 1.0, corr.T_std if corr else 1.0, corr.P_std if corr else 1.0]
+        out = []
+        for cols, s in zip(self._columns(), std):
+            lo = np.array([self.ranges.get(c, (-np.inf, np.inf))[0] for c in cols]) / s
+            hi = np.array([self.ranges.get(c, (-np.inf, np.inf))[1] for c in cols]) / s
+            out.append((lo, hi) if np.isfinite(lo).any() or np.isfinite(hi).any() else None)
+        return out
+
+    def _screen(self, arrays):
+        """Values outside their channel's plausible range become NaN (copies; the caller's arrays
+        are not touched) so the kernel holds or skips them like missing samples; counts missing
+        (NaN, Inf or implausible) and implausible samples per channel. Returns the arrays and the
+        (n,) bool mask of samples with an implausible value (None when there was none)."""
+        out, mask, seen = [], None, set()
+        for a, cols, lim in zip(arrays, self._columns(), self._limits):
+            a2 = a.reshape(a.shape[0], -1)
+            bad = None
+            if lim is not None:
+                with np.errstate(invalid="ignore"):
+                    bad = (a2 < lim[0]) | (a2 > lim[1])
+                if bad.any():
+                    a2 = np.where(bad, np.nan, a2)
+                    a = a2.reshape(a.shape)
+                    rows = bad.any(axis=1)
+                    mask = rows if mask is None else mask | rows
+                else:
+                    bad = None
+            gone = a2.shape[0] - np.isfinite(a2).sum(axis=0)
+            for j, c in enumerate(cols):
+                if c is None or c in seen:
+                    continue
+                seen.add(c)
+                self.missing[c] = self.missing.get(c, 0) + int(gone[j])
+                if bad is not None:
+                    self.implausible[c] = self.implausible.get(c, 0) + int(bad[:, j].sum())
+            out.append(np.ascontiguousarray(a))
+        return out, mask
 
     def _split(self, log: Log, rows=slice(None)):
         """The kernel's input arrays from a log (checks presence and units of every channel)."""
@@ -301,19 +362,55 @@ class Estimator:
         log = log if isinstance(log, Log) else read_log(log)
         if reset:
             self.reset()
+        log = self._check_interval(log)
         arrays = self._split(log)
         res = self.run_arrays(*arrays, time=log.time)
         res.source = log.path
-        res.attrs = {k: v for k, v in log.attrs.items() if k in LOG_ATTRS} | {"provenance": self.provenance}
+        res.attrs = {k: v for k, v in log.attrs.items() if k in LOG_ATTRS} | {
+            "provenance": self.provenance | self._log_record(log)}
         self._check_envelope(res.flags, res.time, log.path)
         acc = self._snapshot_accumulator(log.dt)
         self._accumulate(acc, 0, res, arrays)
         res.snapshots = acc.snapshots()
         return res
 
+    #: relative difference between a log's sample interval and the database's dt that is refused
+    DT_TOLERANCE = 0.01
+
+    def _check_interval(self, log: Log, whole=None) -> Log:
+        """The log if it is sampled at the database's dt (within :attr:`DT_TOLERANCE`); resampled
+        to it when the estimator was made with ``resample=True``; else a :class:`LogError`: the
+        discrete matrices and gains hold for one step size only. ``whole``: a loader of the
+        whole log (for headers read without their data)."""
+        dt, want = sample_interval(log.time), self.db.dt
+        if not np.isfinite(dt) or abs(dt / want - 1.0) <= self.DT_TOLERANCE:
+            return log
+        if not self.resample:
+            raise LogError(f"{log.path}: sampled every {dt * 1e3:.6g} ms, the database "
+                           f"{os.path.basename(self.db.path)} is discretized for {want * 1e3:.6g} ms; "
+                           f"resample the log (pwl run --resample does it by linear interpolation)")
+        return resample(whole() if whole else log, want)
+
+    def _log_record(self, log: Log) -> dict:
+        """Provenance of one log: its file and digest, unit conversions, implausible and missing
+        samples per channel (JSON strings, as HDF5 attributes)."""
+        import json
+
+        from .h5io import file_digest
+        rec = {"log": os.path.abspath(log.path) if os.path.exists(log.path) else log.path,
+               "log_digest": file_digest(log.path) if os.path.isfile(log.path) else "",
+               "units_converted": json.dumps(log.conversions(
+                   {c: self.channel_units.get(c, "") for c in self.input_channels})),
+               "implausible_channels": json.dumps({c: n for c, n in self.implausible.items() if n}),
+               "missing_channels": json.dumps({c: n for c, n in self.missing.items() if n})}
+        if "resampled_from" in log.attrs:
+            rec["resampled_from_dt"] = float(log.attrs["resampled_from"])
+        return rec
+
     @property
     def provenance(self) -> dict:
-        """What produced a results file: database path, estimator mode, pwl version, time."""
+        """What produced a results file: database path and digest, estimator mode, pwl version,
+        time."""
         import datetime
 
         from . import __version__
@@ -323,7 +420,7 @@ class Estimator:
         if self.bias:
             mode += "+bias"
         return {"database": os.path.abspath(self.db.path) if self.db.path != "<memory>" else "<memory>",
-                "mode": mode, "pwl_version": __version__,
+                "database_digest": self.db.digest, "mode": mode, "pwl_version": __version__,
                 "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")}
 
     # ---- steady-state snapshots (for diagnostics) --------------------------------------------
@@ -378,11 +475,13 @@ class Estimator:
         """
         log_path = os.fspath(log_path)
         self.reset()
-        if os.fspath(out_path).lower().endswith(".csv") or not log_path.lower().endswith((".h5", ".hdf5")):
-            res = self.run(log_path, reset=False)
+        head = None if not log_path.lower().endswith((".h5", ".hdf5")) else read_header(log_path)
+        if head is not None:
+            head = self._check_interval(head, whole=lambda: read_log(log_path))
+        if os.fspath(out_path).lower().endswith(".csv") or head is None or "resampled_from" in head.attrs:
+            res = self.run(head if head is not None and head.channels else log_path, reset=False)
             res.save(out_path)
-            return res.counts() | {"snapshots": len(res.snapshots)}
-        head = read_header(log_path)
+            return res.counts() | {"snapshots": len(res.snapshots), "missing_channels": dict(self.missing)}
         n = len(head)
         counts = None
         acc = self._snapshot_accumulator(head.dt)
@@ -397,12 +496,12 @@ class Estimator:
                 self._accumulate(acc, a, res, arrays)
                 c = res.counts()
                 counts = c if counts is None else {k: counts[k] + c[k] for k in c}
-            for k, v in counts.items():
+            for k, v in (counts | self._log_record(head)).items():
                 f.attrs[k] = v
             snaps = acc.snapshots()
             snaps.save(f.create_group("snapshots"))
         counts["snapshots"] = len(snaps)
-        return counts
+        return counts | {"missing_channels": dict(self.missing)}
 
 
 def load_bias_tables(path) -> dict:
@@ -418,9 +517,9 @@ def load_bias_tables(path) -> dict:
 _worker_est = None
 
 
-def _init_worker(db_path, online=False, zones=False):
+def _init_worker(db_path, online=False, zones=False, resample=False):
     global _worker_est
-    _worker_est = Estimator(db_path, online=online, zones=zones)
+    _worker_est = Estimator(db_path, online=online, zones=zones, resample=resample)
 
 
 def _run_one(log_path, out_path):
@@ -453,15 +552,17 @@ def result_names(log_paths, names=None) -> list[str]:
     stems = [os.path.splitext(n)[0] for n in out]
     if len(set(stems)) != len(stems):
         dup = sorted({s for s in stems if stems.count(s) > 1})
-        raise ValueError(f"logs {dup[:3]} would write the same results file; give them distinct names "
+        raise UsageError(f"logs {dup[:3]} would write the same results file; give them distinct names "
                          "or folders")
     return out
 
 
 def run_many(db_path, log_paths, outdir, workers: int | None = None, csv: bool = False,
-             progress=None, online: bool = False, zones: bool = False, names=None):
+             progress=None, online: bool = False, zones: bool = False, names=None,
+             resample: bool = False):
     """Estimate every log into ``outdir`` (one results file per log), in parallel processes
-    (``online``, ``zones``: the full Kalman filter or the zone gains, as for :class:`Estimator`).
+    (``online``, ``zones``, ``resample``: the full Kalman filter, the zone gains, logs resampled to
+    the database's dt, as for :class:`Estimator`).
     ``names``: results names relative to ``outdir`` (see :func:`result_names`; folder trees such as
     a fleet's ``ESN001/flight_000.h5`` keep their sub-folders).
 
@@ -477,13 +578,13 @@ def run_many(db_path, log_paths, outdir, workers: int | None = None, csv: bool =
     workers = max(1, min(len(logs), workers or os.cpu_count() or 1))
     results = []
     if workers == 1:
-        _init_worker(db_path, online, zones)
+        _init_worker(db_path, online, zones, resample)
         for i, (lg, out) in enumerate(zip(logs, outs)):
             results.append(_run_one(lg, out))
             if progress:
                 progress(i + 1, len(logs), results[-1])
         return results
-    with ProcessPoolExecutor(workers, initializer=_init_worker, initargs=(os.fspath(db_path), online, zones)) as ex:
+    with ProcessPoolExecutor(workers, initializer=_init_worker, initargs=(os.fspath(db_path), online, zones, resample)) as ex:
         futs = [ex.submit(_run_one, lg, out) for lg, out in zip(logs, outs)]
         for i, fut in enumerate(futs):
             results.append(fut.result())

@@ -12,6 +12,7 @@ CSV layout: one header row of ``name[unit]`` cells (``[unit]`` may be omitted), 
 """
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import os
@@ -20,8 +21,9 @@ from dataclasses import dataclass, field
 import h5py
 import numpy as np
 
-from .h5io import atomic_h5, attr_str
 from .errors import PwlError
+from .h5io import SealError, atomic_h5, attr_str, check_seal
+from .units import UnitError, converter
 
 FORMAT = "pwl-flight-log"
 VERSION = 1
@@ -48,25 +50,40 @@ class Log:
 
     @property
     def dt(self) -> float:
+        """The sample interval (s): the ``dt`` attribute, else the median time step."""
         if "dt" in self.attrs:
             return float(self.attrs["dt"])
-        return float(np.median(np.diff(self.time))) if self.time.size > 1 else float("nan")
+        return sample_interval(self.time)
 
     def require(self, names, units=None) -> np.ndarray:
-        """Stack channels ``names`` into a C-contiguous (n, k) array; check units if given.
+        """Stack channels ``names`` into a C-contiguous (n, k) array, in ``units`` if given: a
+        channel declared in another known unit of the same quantity is converted (``kPa`` to
+        ``Pa``, ``degC`` to ``K``, ...; :mod:`pwl.units`), one without a declared unit is taken
+        as it is.
 
-        Raises :class:`LogError` naming the file and the missing or mismatched channel.
+        Raises :class:`LogError` naming the file and the missing channel, or the channel whose
+        unit cannot be converted.
         """
         out = np.empty((len(self), len(names)))
         for j, name in enumerate(names):
             if name not in self.channels:
                 raise LogError(f"{self.path}: channel {name!r} is missing "
                                f"(log has: {', '.join(sorted(self.channels))})")
-            if units is not None and units[j] and self.units.get(name, "") not in ("", units[j]):
-                raise LogError(f"{self.path}: channel {name!r} has unit {self.units[name]!r}, "
-                               f"expected {units[j]!r}")
             out[:, j] = self.channels[name]
+            if units is not None:
+                try:
+                    scale, offset = converter(self.units.get(name, ""), units[j], f"{self.path}: channel {name!r}")
+                except UnitError as e:
+                    raise LogError(str(e)) from None
+                if (scale, offset) != (1.0, 0.0):
+                    out[:, j] = out[:, j] * scale + offset
         return out
+
+    def conversions(self, units: dict) -> dict:
+        """channel -> "have -> want" for every channel of ``units`` (name -> unit) that
+        :meth:`require` converts."""
+        return {c: f"{self.units[c]} -> {u}" for c, u in units.items()
+                if self.units.get(c) and u and self.units[c] != u}
 
 
 def write_log(path, log: Log, compact: bool = False) -> None:
@@ -116,23 +133,36 @@ def write_csv(path, log: Log) -> None:
     os.replace(tmp, path)
 
 
+@contextlib.contextmanager
+def _named(path, what: str = "damaged log"):
+    """Any exception but pwl's own while reading ``path`` becomes a :class:`LogError` naming it
+    (HDF5, CSV and Parquet readers raise many kinds on a damaged file)."""
+    try:
+        yield
+    except SealError as e:
+        raise LogError(str(e)) from None
+    except PwlError:
+        raise
+    except Exception as e:
+        raise LogError(f"{path}: {what} ({type(e).__name__}: {' '.join(str(e).split())})") from None
+
+
 def read_log(path) -> Log:
-    """Read an HDF5 or CSV log; raises :class:`LogError` naming the file on any defect."""
+    """Read an HDF5, CSV or Parquet log; raises :class:`LogError` naming the file on any defect."""
     path = os.fspath(path)
     if not os.path.exists(path):
         raise LogError(f"{path}: no such file")
     if path.lower().endswith(".csv"):
-        return _read_csv(path)
+        with _named(path, "unreadable CSV log"):
+            return _read_csv(path)
     if path.lower().endswith(".parquet"):
-        return _read_parquet(path)
+        with _named(path, "unreadable Parquet log"):
+            return _read_parquet(path)
     head = read_header(path)
     log = read_rows(head, 0, len(head))
-    try:
-        with h5py.File(path, "r") as f:
-            if "truth" in f:
-                log.truth, log.truth_units = _read_group(f, "truth", len(head), path)
-    except OSError as e:
-        raise LogError(f"{path}: damaged log, cannot read /truth ({e})") from None
+    with _named(path, "damaged log, cannot read /truth"), h5py.File(path, "r") as f:
+        if "truth" in f:
+            log.truth, log.truth_units = _read_group(f, "truth", len(head), path)
     return log
 
 
@@ -144,31 +174,41 @@ def read_header(path) -> Log:
     path = os.fspath(path)
     if not os.path.exists(path):
         raise LogError(f"{path}: no such file")
-    try:
-        f = h5py.File(path, "r")
-    except OSError as e:
-        raise LogError(f"{path}: not a readable HDF5 file ({e})") from None
-    with f:
-        fmt = attr_str(f, "format")
-        if fmt != FORMAT:
-            raise LogError(f"{path}: not a flight log (format attribute {fmt!r}, expected {FORMAT!r})")
-        ver = int(f.attrs.get("format_version", -1))
-        if ver > VERSION:
-            raise LogError(f"{path}: flight-log format version {ver} is newer than this pwl reads ({VERSION})")
-        try:
+    with _named(path, "not a readable HDF5 log"):
+        check_seal(path)
+        with h5py.File(path, "r") as f:
+            fmt = attr_str(f, "format")
+            if fmt != FORMAT:
+                raise LogError(f"{path}: not a flight log (format attribute {fmt!r}, expected {FORMAT!r})")
+            ver = int(f.attrs.get("format_version", -1))
+            if ver > VERSION:
+                raise LogError(f"{path}: flight-log format version {ver} is newer than this pwl reads ({VERSION})")
+            if "time" not in f or "channels" not in f:
+                raise LogError(f"{path}: /time or /channels is missing")
             time = np.asarray(f["time"][()], dtype=np.float64)
-            if "channels" not in f:
-                raise LogError(f"{path}: group /channels is missing")
             units = {}
             for k, d in f["channels"].items():
                 if d.shape != time.shape:
                     raise LogError(f"{path}: /channels/{k} has shape {d.shape}, expected {time.shape} like /time")
                 units[k] = attr_str(d, "unit", "")
-        except (KeyError, OSError) as e:
-            raise LogError(f"{path}: damaged or incomplete log ({e})") from None
-        attrs = {k: attr_str(f, k) for k in f.attrs if k not in ("format", "format_version")}
+            attrs = {k: attr_str(f, k) for k in f.attrs if k not in ("format", "format_version")}
     check_time(path, time)
     return Log(time, {}, units, attrs=attrs, path=path)
+
+
+def sample_interval(time) -> float:
+    """The log's sample interval (s): the median time step (NaN for fewer than 2 samples)."""
+    return float(np.median(np.diff(time))) if len(time) > 1 else float("nan")
+
+
+def resample(log: Log, dt: float) -> Log:
+    """The log on a uniform time grid of step ``dt`` (s) from its first sample, every channel and
+    truth interpolated linearly (a NaN sample spoils its neighbours' interval only)."""
+    t = log.time[0] + np.arange(int(np.floor((log.time[-1] - log.time[0]) / dt + 1e-9)) + 1) * dt
+    def interp(d):
+        return {k: np.interp(t, log.time, v) for k, v in d.items()}
+    return Log(t, interp(log.channels), dict(log.units), interp(log.truth), dict(log.truth_units),
+               {**log.attrs, "dt": dt, "resampled_from": sample_interval(log.time)}, log.path)
 
 
 def check_time(path, time) -> None:
@@ -187,11 +227,8 @@ def check_time(path, time) -> None:
 
 def read_rows(head: Log, a: int, b: int) -> Log:
     """Samples a..b of every channel of the HDF5 log described by ``head`` (from read_header)."""
-    try:
-        with h5py.File(head.path, "r") as f:
-            chans = {k: np.asarray(f["channels"][k][a:b], dtype=np.float64) for k in head.units}
-    except (OSError, KeyError) as e:
-        raise LogError(f"{head.path}: damaged log, cannot read samples {a}..{b} ({e})") from None
+    with _named(head.path, f"damaged log, cannot read samples {a}..{b}"), h5py.File(head.path, "r") as f:
+        chans = {k: np.asarray(f["channels"][k][a:b], dtype=np.float64) for k in head.units}
     return Log(head.time[a:b], chans, head.units, attrs=head.attrs, path=head.path)
 
 
@@ -234,7 +271,7 @@ def _from_columns(path, names, units, data) -> Log:
 
 
 def _read_csv(path) -> Log:
-    with open(path, newline="") as fh:
+    with open(path, newline="", encoding="utf-8") as fh:
         rows = list(csv.reader(fh))
     if not rows:
         raise LogError(f"{path}: the file is empty")

@@ -27,7 +27,8 @@ import numpy as np
 from numba import njit
 
 from .covariance import correct, propagate_augmented
-from .database import GainDatabase
+from .database import DatabaseError, GainDatabase
+from .errors import UsageError
 from .grid import locate
 from .interp import corner_weights, interp_rows
 from .tables import table_predict, table_update
@@ -37,6 +38,8 @@ FLAG_HELD_INPUT = 2       # an input, schedule or theta/delta channel was NaN: l
 FLAG_TRIM_OUTSIDE = 4     # the operating point left the trim grid (clipped or extrapolated)
 FLAG_DYN_OUTSIDE = 8      # the operating point left the dynamics grid
 FLAG_NOT_STARTED = 16     # no valid sample yet: outputs are NaN
+FLAG_IMPLAUSIBLE = 32     # a channel was outside its plausible range: treated as missing (set by
+                          # pwl.estimator before the kernel, which then holds or skips it)
 
 # layout of the per-filter state vector (float64): [x_abs (nx), q (nq), u_last (nu), s_last (ns),
 # theta_last, delta_last, started]
@@ -516,10 +519,10 @@ class PackedModel:
         :class:`pwl.ekf.ZoneTable` on the dynamics grid whose centroid gains are picked per step
         instead of interpolating K."""
         if online and not tune:
-            raise ValueError("the online-covariance filter estimates the tuners: tune=False is a "
+            raise UsageError("the online-covariance filter estimates the tuners: tune=False is a "
                              "steady-gain option only")
         if online and zones is not None:
-            raise ValueError("online covariance and zone gains exclude each other")
+            raise UsageError("online covariance and zone gains exclude each other")
         tg, dg = db.trim_grid, db.dyn_grid
         trim_tab = np.ascontiguousarray(np.concatenate(
             [db.trim[k].reshape(tg.size, -1) for k in "xuyz"], axis=1))
@@ -538,12 +541,12 @@ class PackedModel:
             same = zones.grid.names == dg.names and all(
                 np.array_equal(a.values, b.values) for a, b in zip(zones.grid.axes, dg.axes))
             if not same:
-                raise ValueError(f"{db.path}: the zones' lookup grid {zones.grid.names} is not the "
+                raise DatabaseError(f"{db.path}: the zones' lookup grid {zones.grid.names} is not the "
                                  f"dynamics grid {dg.names}: zones of this database are built by "
                                  "linearize.zones.database_zones")
             zg = zones.gains.copy()
             if zg.shape[1:] != db.kalman["K"].shape[-2:]:
-                raise ValueError(f"{db.path}: zone gains {zg.shape[1:]} do not match K "
+                raise DatabaseError(f"{db.path}: zone gains {zg.shape[1:]} do not match K "
                                  f"{db.kalman['K'].shape[-2:]}")
             if not tune:
                 zg[:, nx:, :] = 0.0
@@ -573,7 +576,7 @@ class PackedModel:
         for j, (c, corr, _) in enumerate(db.schedule):
             if corr:
                 if c not in by_name:
-                    raise ValueError(f"{db.path}: scheduling channel {c!r} is marked corrected but has "
+                    raise DatabaseError(f"{db.path}: scheduling channel {c!r} is marked corrected but has "
                                      f"no correction exponents")
                 ex_s[j] = by_name[c]
         every = np.concatenate([ex[k] for k in "xuyz"] + [ex_s]).astype(np.float64)

@@ -7,6 +7,7 @@ import pytest
 
 from conftest import make_database
 from pwl import database as dbm
+from pwl.h5io import USERBLOCK, seal
 from pwl.database import GainDatabase
 
 
@@ -61,9 +62,13 @@ def saved(tmp_path):
     return p
 
 
-def edit(path, fn):
+def edit(path, fn, reseal=True):
+    """Change a saved database with h5py; ``reseal``: seal it again, as if pwl had written it so
+    (what remains to catch is the content), else the seal no longer matches."""
     with h5py.File(path, "r+") as f:
         fn(f)
+    if reseal:
+        seal(path)
 
 
 def test_not_hdf5(tmp_path):
@@ -162,6 +167,74 @@ def test_info_command(saved, capsys):
     from pwl.cli import main
     assert main(["info", str(saved)]) == 0
     out = capsys.readouterr().out
-    for s in ("pwl-gain-database v1", "trim grid: 3 x 4", "p1", "filled", "replaced", "q (tuners, 2)"):
+    for s in (f"pwl-gain-database v{dbm.VERSION}", "sha256", "trim grid: 3 x 4", "p1", "filled", "replaced", "q (tuners, 2)"):
         assert s in out
     assert main(["info", str(saved) + ".missing"]) == 2
+
+
+# ---- integrity: the seal, finite values, stable gains (#14) ------------------------------------
+def test_any_change_after_writing_is_a_named_error(saved):
+    clean = saved.read_bytes()
+    rng = np.random.default_rng(0)
+    for pos in rng.integers(USERBLOCK, len(clean), 20):       # single bit flips anywhere in the data
+        b = bytearray(clean)
+        b[pos] ^= 1 << int(rng.integers(8))
+        saved.write_bytes(bytes(b))
+        with pytest.raises(dbm.CorruptError, match="does not match its seal"):
+            GainDatabase.open(saved)
+    saved.write_bytes(clean[:len(clean) // 2])                  # truncated
+    with pytest.raises(dbm.CorruptError, match="does not match its seal"):
+        GainDatabase.open(saved)
+    saved.write_bytes(clean)
+    edit(saved, lambda f: f["kalman/K"].__setitem__((0, 0, 0, 0), 1.0), reseal=False)   # edited by h5py
+    with pytest.raises(dbm.CorruptError, match="does not match its seal"):
+        GainDatabase.open(saved)
+    saved.write_bytes(bytes(USERBLOCK) + clean[USERBLOCK:])     # seal wiped: version 2 needs one
+    with pytest.raises(dbm.CorruptError, match="seal is missing"):
+        GainDatabase.open(saved)
+
+
+def test_unsealed_version_1_files_still_open(saved):
+    ref = GainDatabase.open(saved)
+    edit(saved, lambda f: f.attrs.__setitem__("format_version", 1), reseal=False)
+    with open(saved, "r+b") as fh:
+        fh.write(bytes(USERBLOCK))                              # as written before seals existed
+    db = GainDatabase.open(saved)
+    assert db.format_version == 1 and not db.sealed and len(db.digest) == 64
+    np.testing.assert_array_equal(db.kalman["K"], ref.kalman["K"])
+
+
+@pytest.mark.parametrize("ds, value", [("kalman/K", np.nan), ("trim/y", np.inf), ("dynamics/A", -np.inf),
+                                       ("tuner/h_ref", np.nan), ("kalman/R", np.nan)])
+def test_non_finite_values_are_named(saved, ds, value):
+    def spoil(f):
+        a = f[ds][()]
+        a.reshape(-1)[a.size // 2] = value
+        f[ds][...] = a
+    edit(saved, spoil)
+    with pytest.raises(dbm.NonFiniteError, match=f"/{ds} has 1 non-finite values"):
+        GainDatabase.open(saved)
+
+
+def test_unstable_gain_is_named_with_its_node(saved):
+    ref = GainDatabase.open(saved)
+    # an independent check first: every stored gain is stable (numpy eigenvalues node by node)
+    from pwl.runtime import augment
+    aug = augment(ref.dynamics, ref.tuner["V_pinv"])
+    for idx in np.ndindex(*ref.dyn_grid.shape):
+        M = (np.eye(ref.na) - ref.kalman["K"][idx] @ aug["C"][idx]) @ aug["A"][idx]
+        assert np.abs(np.linalg.eigvals(M)).max() == pytest.approx(ref.gain_radius()[idx], rel=1e-12)
+    edit(saved, lambda f: f["kalman/K"].__setitem__((1, 2), -50 * f["kalman/K"][1, 2]))
+    p1 = ref.dyn_grid.axes[1].values[2]
+    with pytest.raises(dbm.UnstableGainError, match=f"at 1 nodes .*p1 = {p1:g}"):
+        GainDatabase.open(saved)
+
+
+def test_files_honour_the_umask(tmp_path):
+    import os
+    old = os.umask(0o027)
+    try:
+        make_database().save(tmp_path / "a.h5")
+    finally:
+        os.umask(old)
+    assert (os.stat(tmp_path / "a.h5").st_mode & 0o777) == 0o640

@@ -47,8 +47,19 @@ def test_require_names_missing_channel_and_units(tmp_path):
     log = sample_log(10)
     with pytest.raises(LogError, match="'Wf' is missing"):
         log.require(["Nf", "Wf"])
-    with pytest.raises(LogError, match="'T48' has unit 'K', expected 'degC'"):
-        log.require(["T48"], ["degC"])
+    # a known unit of the same quantity is converted (K -> degC, rpm -> rad/s) ...
+    np.testing.assert_allclose(log.require(["T48", "Nf"], ["degC", "rad/s"]),
+                               np.column_stack([log.channels["T48"] - 273.15, log.channels["Nf"] * np.pi / 30]),
+                               rtol=1e-13)
+    assert log.conversions({"T48": "degC", "Nf": "rpm"}) == {"T48": "K -> degC"}
+    # ... another quantity or an unknown unit is refused, naming the file, the channel and the units
+    with pytest.raises(LogError, match=r"<memory>: channel 'T48'.*'K' \(temperature\).*'Pa' \(pressure\)"):
+        log.require(["T48"], ["Pa"])
+    log.units["Nf"] = "furlongs"
+    with pytest.raises(LogError, match="channel 'Nf'.*'furlongs' is not a unit pwl knows"):
+        log.require(["Nf"], ["rpm"])
+    log.units["Nf"] = ""     # not declared: taken as it is
+    np.testing.assert_array_equal(log.require(["Nf"], ["rpm"])[:, 0], log.channels["Nf"])
 
 
 def test_foreign_and_damaged_hdf5(tmp_path):
@@ -60,8 +71,17 @@ def test_foreign_and_damaged_hdf5(tmp_path):
     with h5py.File(tmp_path / "b.h5", "r+") as f:
         del f["channels/Nf"]
         f["channels/Nf"] = np.zeros(3)
+    with pytest.raises(LogError, match="b.h5: content does not match its seal"):   # pwl's own file
+        read_log(tmp_path / "b.h5")
+    unseal(tmp_path / "b.h5")                     # as if another tool had written it
     with pytest.raises(LogError, match="/channels/Nf has shape"):
         read_log(tmp_path / "b.h5")
+
+
+def unseal(path):
+    """Blank a file's seal (pwl.h5io): the file then reads as one written by another tool."""
+    with open(path, "r+b") as f:
+        f.write(bytes(512))
 
 
 def test_csv_errors(tmp_path):

@@ -73,7 +73,7 @@ def test_step_api_matches_run(tmp_path):
     chans = {"u0": U[:, 0], "p0": S[:, 0], "Tin": TH * 288.15, "Pin": DE * 101325.0}
     chans.update({f"y{j}": Y[:, j] for j in range(db.n("y"))})
     units = {"u0": "unit_u0", "p0": "unit_p0", **{f"y{j}": f"unit_y{j}" for j in range(db.n("y"))}}
-    log = Log(np.arange(30) * 0.1, chans, units, path="mem")
+    log = Log(np.arange(30) * db.dt, chans, units, path="mem")
     batch = est.run(log)
     est.reset()
     for k in range(30):
@@ -205,7 +205,7 @@ def test_wrong_units_are_named(tmp_path):
     log = full_log(db, n=20)
     log.units["u0"] = "lbm/s"
     write_log(tmp_path / "log.h5", log)
-    with pytest.raises(LogError, match="'u0' has unit 'lbm/s', expected 'unit_u0'"):
+    with pytest.raises(LogError, match="log.h5: channel 'u0': unit 'lbm/s' cannot be converted to 'unit_u0'"):
         Estimator(db).run(tmp_path / "log.h5")
 
 

@@ -1,0 +1,60 @@
+"""Units of log channels: the conversions pwl knows, and nothing it guesses.
+
+A unit is a symbol (as declared in a log, e.g. ``kPa``); every known symbol maps to its dimension
+and the affine map to that dimension's SI unit, value_SI = value * scale + offset. A log channel
+whose declared unit differs from the database's is converted when both are known and of one
+dimension, and refused otherwise (:class:`UnitError` names the channel and both units); a channel
+with no declared unit is taken as it is (its plausible range still applies).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .errors import PwlError
+
+_F = 5.0 / 9.0
+#: symbol -> (dimension, scale, offset) to the dimension's SI unit
+UNITS = {
+    # temperature (K)
+    "K": ("temperature", 1.0, 0.0), "degC": ("temperature", 1.0, 273.15), "C": ("temperature", 1.0, 273.15),
+    "°C": ("temperature", 1.0, 273.15), "degR": ("temperature", _F, 0.0), "R": ("temperature", _F, 0.0),
+    "degF": ("temperature", _F, 459.67 * _F), "F": ("temperature", _F, 459.67 * _F),
+    "°F": ("temperature", _F, 459.67 * _F),
+    # pressure (Pa)
+    "Pa": ("pressure", 1.0, 0.0), "hPa": ("pressure", 100.0, 0.0), "mbar": ("pressure", 100.0, 0.0),
+    "kPa": ("pressure", 1e3, 0.0), "MPa": ("pressure", 1e6, 0.0), "bar": ("pressure", 1e5, 0.0),
+    "psi": ("pressure", 6894.757293168361, 0.0), "psia": ("pressure", 6894.757293168361, 0.0),
+    "atm": ("pressure", 101325.0, 0.0), "inHg": ("pressure", 3386.389, 0.0),
+    # mass flow (kg/s)
+    "kg/s": ("mass flow", 1.0, 0.0), "kg/h": ("mass flow", 1.0 / 3600.0, 0.0),
+    "g/s": ("mass flow", 1e-3, 0.0), "lb/s": ("mass flow", 0.45359237, 0.0),
+    "lbm/s": ("mass flow", 0.45359237, 0.0), "lb/h": ("mass flow", 0.45359237 / 3600.0, 0.0),
+    "lbm/h": ("mass flow", 0.45359237 / 3600.0, 0.0), "pph": ("mass flow", 0.45359237 / 3600.0, 0.0),
+    # rotational speed (rpm)
+    "rpm": ("rotational speed", 1.0, 0.0), "rad/s": ("rotational speed", 60.0 / (2.0 * np.pi), 0.0),
+    # length (m)
+    "m": ("length", 1.0, 0.0), "km": ("length", 1e3, 0.0), "ft": ("length", 0.3048, 0.0),
+    # force (N)
+    "N": ("force", 1.0, 0.0), "kN": ("force", 1e3, 0.0), "lbf": ("force", 4.4482216152605, 0.0),
+    # ratios: percent and fraction are not interchangeable silently ("-" is also Mach's unit)
+    "%": ("percent", 1.0, 0.0), "-": ("dimensionless", 1.0, 0.0),
+}
+
+
+class UnitError(PwlError, ValueError):
+    """A log channel's declared unit cannot be converted to the one the database uses."""
+
+
+def converter(have: str, want: str, where: str = ""):
+    """(scale, offset) with value_want = value_have * scale + offset; (1, 0) when the units are
+    equal or ``have`` is not declared. Raises :class:`UnitError` naming ``where`` otherwise."""
+    if not have or have == want or not want:
+        return 1.0, 0.0
+    a, b = UNITS.get(have), UNITS.get(want)
+    if a is None or b is None:
+        unknown = have if a is None else want
+        raise UnitError(f"{where}: unit {have!r} cannot be converted to {want!r} ({unknown!r} is not "
+                        f"a unit pwl knows: {', '.join(UNITS)})")
+    if a[0] != b[0]:
+        raise UnitError(f"{where}: unit {have!r} ({a[0]}) cannot be converted to {want!r} ({b[0]})")
+    return a[1] / b[1], (a[2] - b[2]) / b[1]

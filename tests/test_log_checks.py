@@ -1,0 +1,141 @@
+"""What a log must be before the filter sees it (#14): plausible values, known units, the
+database's sample interval; and run summaries that cannot hide a log without estimates."""
+import json
+
+import h5py
+import numpy as np
+import pytest
+
+from conftest import make_database
+from pwl.estimator import Estimator
+from pwl.h5io import file_digest
+from pwl.logs import Log, LogError, write_log
+from pwl.runtime import FLAG_IMPLAUSIBLE
+from test_runtime import full_log, names_db
+
+
+def ranged_db(**kw):
+    """names_db whose log channels carry units and plausible ranges (as a plant declares them)."""
+    db = names_db(**kw)
+    db.log_channels = {"u0": ("kg/s", 0.0, 5.0), "y0": ("K", 0.5, 2.0), "y1": ("", -np.inf, np.inf),
+                       "y2": ("Pa", 0.5, 2.0), "p0": ("", -np.inf, np.inf),
+                       "Tin": ("K", 150.0, 350.0), "Pin": ("Pa", 1e3, 1.2e5)}
+    return db
+
+
+def log_of(db, n=300):
+    log = full_log(db, n=n)
+    log.units = {c: db.log_channels[c][0] for c in log.channels}
+    return log
+
+
+def test_implausible_values_are_flagged_and_held_like_missing_samples():
+    db = ranged_db()
+    log = log_of(db)
+    bad = log_of(db)
+    bad.channels["u0"][100:110] = -1.0          # negative fuel flow
+    bad.channels["y2"][200:205] = 1e30          # a wild sensor value
+    bad.channels["Tin"][50] = 5000.0            # an inlet temperature no atmosphere has
+    gaps = log_of(db)                           # the same samples missing (NaN): the reference
+    gaps.channels["u0"][100:110] = np.nan
+    gaps.channels["y2"][200:205] = np.nan
+    gaps.channels["Tin"][50] = np.nan
+    est = Estimator(db)
+    r_bad = est.run(bad)
+    assert est.implausible == {"u0": 10, "y0": 0, "y1": 0, "y2": 5, "p0": 0, "Tin": 1, "Pin": 0}
+    r_gap = Estimator(db).run(gaps)
+    for o in r_bad.outputs:
+        np.testing.assert_array_equal(r_bad.outputs[o], r_gap.outputs[o])
+    expect = np.zeros(len(log), bool)
+    expect[[*range(100, 110), *range(200, 205), 50]] = True
+    np.testing.assert_array_equal((r_bad.flags & FLAG_IMPLAUSIBLE) != 0, expect)
+    np.testing.assert_array_equal(r_bad.flags & ~FLAG_IMPLAUSIBLE, r_gap.flags)
+    assert r_bad.counts()["implausible"] == 16
+    assert json.loads(r_bad.attrs["provenance"]["implausible_channels"]) == {"u0": 10, "y2": 5, "Tin": 1}
+    # the caller's arrays are not modified
+    assert bad.channels["u0"][100] == -1.0
+
+
+@pytest.mark.parametrize("chan, unit, scale, offset", [("u0", "lb/s", 1 / 0.45359237, 0.0),
+                                                         ("Tin", "degC", 1.0, -273.15),
+                                                         ("Pin", "kPa", 1e-3, 0.0),
+                                                         ("y0", "degF", 1.8, -459.67)])
+def test_declared_units_are_converted(chan, unit, scale, offset):
+    db = ranged_db()
+    ref = Estimator(db).run(log_of(db))
+    log = log_of(db)
+    log.channels[chan] = log.channels[chan] * scale + offset
+    log.units[chan] = unit
+    res = Estimator(db).run(log)
+    for o in ref.outputs:
+        np.testing.assert_allclose(res.outputs[o], ref.outputs[o], rtol=1e-9, atol=1e-9)
+    assert json.loads(res.attrs["provenance"]["units_converted"]) == {chan: f"{unit} -> {db.log_channels[chan][0]}"}
+
+
+def test_undeclared_wrong_units_are_caught_by_the_ranges():
+    # P2 in kPa without saying so: every sample is implausible, nothing starts, and the counts say it
+    db = ranged_db()
+    log = log_of(db)
+    log.channels["Pin"] = log.channels["Pin"] / 1e3
+    log.units["Pin"] = ""
+    est = Estimator(db)
+    c = est.run(log).counts()
+    assert c["implausible"] == c["samples"] == c["not_started"] and c["updated"] == 0
+    assert est.missing["Pin"] == c["samples"]
+    log.units["Pin"] = "psi/furlong"
+    with pytest.raises(LogError, match="channel 'Pin'.*'psi/furlong' is not a unit pwl knows"):
+        Estimator(db).run(log)
+
+
+def test_sample_interval_must_match_the_database():
+    db = ranged_db()
+    log = log_of(db, n=400)
+    slow = Log(log.time * 4, log.channels, log.units, path="slow.h5")    # 60 ms on a 15 ms database
+    with pytest.raises(LogError, match="slow.h5: sampled every 60 ms.*discretized for 15 ms"):
+        Estimator(db).run(slow)
+    res = Estimator(db, resample=True).run(slow)
+    # independent: np.interp of every channel onto the database's step, then the ordinary run
+    t = np.arange(0, slow.time[-1] + 1e-12, db.dt)
+    manual = Log(t, {k: np.interp(t, slow.time, v) for k, v in slow.channels.items()}, log.units)
+    ref = Estimator(db).run(manual)
+    np.testing.assert_allclose(res.time, t, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(res.outputs["h_hat"], ref.outputs["h_hat"])
+    assert res.attrs["provenance"]["resampled_from_dt"] == pytest.approx(4 * db.dt)
+    # within 1 %: accepted as it is
+    near = Log(log.time * 1.005, log.channels, log.units)
+    assert Estimator(db).run(near).counts()["samples"] == 400
+
+
+def test_run_prints_every_flag_count_and_fails_a_log_without_estimates(tmp_path, capsys):
+    from pwl.cli import main
+    db = ranged_db()
+    db.save(tmp_path / "db.h5")
+    good = log_of(db)
+    dead = log_of(db)
+    dead.channels["y2"][:] = np.nan                 # a dead sensor: no measurement update at all
+    write_log(tmp_path / "logs" / "good.h5", good)
+    write_log(tmp_path / "logs" / "dead.h5", dead)
+    code = main(["run", str(tmp_path / "db.h5"), str(tmp_path / "logs"), "-o", str(tmp_path / "out"), "-j", "1"])
+    err = capsys.readouterr().err
+    assert code == 1
+    for label in ("updated", "without update", "input held", "implausible", "outside the trim grid",
+                  "outside the dynamics grid", "before the first valid sample"):
+        assert label in err
+    assert "dead.h5" in err and "TOO FEW ESTIMATES: 0 of 300 samples had a measurement update; " \
+                                "missing or implausible: y2 100%" in err
+    assert err.count("TOO FEW") == 1
+    # provenance: the database and the log by path and digest
+    with h5py.File(tmp_path / "out" / "good.estimates.h5") as f:
+        assert f.attrs["database_digest"] == file_digest(tmp_path / "db.h5")
+        assert f.attrs["log_digest"] == file_digest(tmp_path / "logs" / "good.h5")
+        assert f.attrs["mode"] == "steady" and f.attrs["updated"] == 300
+    # the same logs with a lower bar pass
+    assert main(["run", str(tmp_path / "db.h5"), str(tmp_path / "logs" / "good.h5"), "-o",
+                 str(tmp_path / "out2"), "-j", "1"]) == 0
+
+
+def test_database_without_ranges_still_runs():
+    db = make_database()
+    assert db.log_channels is None
+    db.schedule = [("p0", False, 1.0), ("y1", True, 2.0)]
+    assert Estimator(db).run(full_log(db)).counts()["implausible"] == 0
