@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pwl.database import DatabaseError
 from pwl.ekf import ZoneTable
 from pwl.grid import Axis, Grid
 
@@ -313,6 +314,11 @@ def database_zones(db, k: int = 3, seed: int = 0, n_init: int = 10):
     zoned.kalman["K"] = np.ascontiguousarray(Kz)
     zoned.zones = record
     zoned.attrs = dict(zoned.attrs, gains="k-means zone centroids", zones_k=int(k))
+    try:
+        zoned.check_gains()
+    except DatabaseError as e:
+        raise GainError(f"the k = {k} zone gains are not stabilizing everywhere: {e}; use more "
+                        f"zones") from None
     return record, zoned
 
 

@@ -8,10 +8,12 @@ from pwl.grid import Axis, Grid
 
 
 def make_database(seed=0, nx=2, nu=1, ny=3, nz=2, nh=4, nq=2, trim_shape=(3, 4), dyn_shape=(2, 3),
-                  policy="clip", correction=True, dt=0.015):
-    """A random database whose matrices are stable and whose gains are arbitrary but finite.
+                  policy="clip", correction=True, dt=0.015, spread=1.0):
+    """A random database whose matrices are stable and whose gains are the steady-state gains.
 
     Scheduling variables: p0 (trim and dynamics axis), p1 (both); trims vary smoothly.
+    ``spread``: how much the matrices differ from node to node (1: independent draws; small:
+    close to one common draw, so that gains shared between nodes, e.g. zones, stay stabilizing).
     """
     rng = np.random.default_rng(seed)
     na = nx + nq
@@ -32,7 +34,8 @@ def make_database(seed=0, nx=2, nu=1, ny=3, nz=2, nh=4, nq=2, trim_shape=(3, 4),
     trim = {k: 1.0 + rng.random(T + (len(names[k]),)) for k in "xuyz"}
     mats = {"A": (nx, nx), "B": (nx, nu), "C": (ny, nx), "D": (ny, nu), "F": (nz, nx), "G": (nz, nu),
             "L": (nx, nh), "M": (ny, nh), "N": (nz, nh)}
-    dyn = {k: rng.normal(size=D + s) for k, s in mats.items()}
+    dyn = {k: rng.normal(size=s) + spread * rng.normal(size=D + s) for k, s in mats.items()} if spread < 1 \
+        else {k: rng.normal(size=D + s) for k, s in mats.items()}
     dyn["A"] = 0.9 * np.eye(nx) + 0.02 * dyn["A"]
     V = rng.normal(size=(nq, nh))
     Vp = np.linalg.pinv(V)

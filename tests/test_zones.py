@@ -313,7 +313,7 @@ def test_zones_record_roundtrip_through_database(tmp_path, build):
 
 
 def test_database_zones(tmp_path):
-    db = make_database(dyn_shape=(4, 5))
+    db = make_database(dyn_shape=(4, 5), spread=0.1)
     K0 = db.kalman["K"].copy()
     record, zoned = Z.database_zones(db, k=3, seed=1)
     np.testing.assert_array_equal(db.kalman["K"], K0)            # the original is untouched
@@ -335,6 +335,8 @@ def test_database_zones(tmp_path):
     assert not t.kernel_args()[0]
     np.testing.assert_array_equal(t.zone_of(db.dyn_grid.nodes()), lab)
     zoned.save(tmp_path / "zoned.h5")
+    with pytest.raises(Z.GainError, match="k = 2 zone gains are not stabilizing.*use more zones"):
+        Z.database_zones(make_database(dyn_shape=(4, 5)), k=2, seed=1)   # gains too far apart
     back = GainDatabase.open(tmp_path / "zoned.h5")
     np.testing.assert_array_equal(back.kalman["K"], zoned.kalman["K"])
     np.testing.assert_array_equal(ZoneTable.from_record(back.zones).labels, t.labels)
@@ -374,7 +376,7 @@ def test_compare_database_zone_vs_interpolated(tmp_path):
     from pwl.estimator import Estimator
     from pwl.logs import Log, write_log
 
-    db = make_database(dyn_shape=(4, 5), correction=False)
+    db = make_database(dyn_shape=(4, 5), correction=False, spread=0.1)
     db.schedule = [("p0", False, 1.0), ("p1", False, 1.0)]
     db.save(tmp_path / "db.h5")
     est = Estimator(db)
