@@ -12,7 +12,7 @@ runtime kernel itself, fed with what a log of the nonlinear plant would hold:
 """
 from __future__ import annotations
 
-import dataclasses
+import copy
 
 import numpy as np
 
@@ -24,10 +24,12 @@ from . import plant as proto
 
 
 def open_loop(db: GainDatabase) -> Estimator:
-    """An estimator with every gain zero: the piecewise-linear model alone."""
-    kal = dict(db.kalman)
-    kal["K"] = np.zeros_like(db.kalman["K"])
-    return Estimator(dataclasses.replace(db, kalman=kal))
+    """An estimator with every gain zero: the piecewise-linear model alone. A shallow copy, not
+    ``dataclasses.replace``: that would re-validate the database, and zero gains are refused there
+    (the tuners' integrators make the error dynamics marginally stable, on purpose here)."""
+    model = copy.copy(db)
+    model.kalman = dict(db.kalman, K=np.zeros_like(db.kalman["K"]))
+    return Estimator(model)
 
 
 def plant_of(db: GainDatabase):
@@ -110,7 +112,8 @@ def fuel_step(db: GainDatabase, plant=None, p=None, step: float = 0.05, seconds:
               t_step: float = 1.0):
     """Open-loop model vs plant after an input step of ``step`` (fraction) at ``t_step`` s from a
     trim at ``p`` (default: the middle of the trim grid box, off-grid). Returns a dict with
-    time, the plant's and the model's y and z (n, .), and the percent errors."""
+    time, the plant's and the model's y and z (n, .), their names and units, and the percent
+    errors."""
     plant = plant or plant_of(db)
     if p is None:
         p = np.array([0.5 * (a.lo + a.hi) for a in db.trim_grid.axes]) + 1e-3
@@ -125,6 +128,6 @@ def fuel_step(db: GainDatabase, plant=None, p=None, step: float = 0.05, seconds:
     res = open_loop(db).run(log_of(plant, db, p, env, X, U, Y, Z))
     truth = np.hstack([Y, Z])
     model = np.hstack([res.y_hat, res.z_hat])
-    return {"time": time, "truth": truth, "model": model, "p": p,
-            "names": list(plant.y_names) + list(plant.z_names),
-            "error": 100.0 * (model - truth) / np.abs(truth)}
+    names = list(plant.y_names) + list(plant.z_names)
+    return {"time": time, "truth": truth, "model": model, "p": p, "names": names,
+            "units": [plant.units[n] for n in names], "error": 100.0 * (model - truth) / np.abs(truth)}

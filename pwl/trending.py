@@ -17,7 +17,7 @@ floor), so the verdict is less sharp than in a fleet run (``pwl fleet diagnose``
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -61,11 +61,38 @@ def line(x, y):
     return coef[0], coef[1], se, s
 
 
+def detail_units(db: GainDatabase) -> dict[str, str]:
+    """The unit of every fitted parameter a diagnosis ``detail`` can name ('%': a fraction, shown
+    in percent): health parameters and input biases are fractions, sensed-output biases are
+    offsets in the sensor's unit (:mod:`pwl.signatures`)."""
+    units = dict.fromkeys(db.names["h"], "%")
+    units.update({f"sensor:{c}": "%" for c in db.names["u"]})
+    units.update({f"sensor:{c}": u for c, u in zip(db.names["y"], db.units["y"])})
+    return units
+
+
+def readable_detail(detail: str, units: dict[str, str]) -> str:
+    """A diagnosis ``detail`` ("hpt_eff=-0.01735 sensor:T48=+15.2", fractions and sensor units)
+    for people: "hpt_eff -1.74 %, sensor:T48 +15.2 K" (a name without a unit is kept as it is)."""
+    parts = []
+    for item in detail.split():
+        name, _, value = item.partition("=")
+        unit = units.get(name)
+        if unit == "%":
+            parts.append(f"{name} {100 * float(value):+.2f} %")
+        elif unit is not None:
+            parts.append(f"{name} {float(value):+.4g} {unit}")
+        else:
+            parts.append(item)
+    return ", ".join(parts)
+
+
 @dataclass
 class EngineTrend:
     """One engine over its flights: labels (n,), health H (n, nh) fractions (NaN without a
     snapshot), per parameter level at the newest flight, slope per flight and its standard error,
-    and the diagnosis per flight."""
+    the diagnosis per flight, and the units of the diagnosis details (:func:`detail_units`).
+    Printed and plotted health values are in percent."""
 
     engine: str
     labels: list[str]
@@ -75,10 +102,14 @@ class EngineTrend:
     slope: np.ndarray
     slope_se: np.ndarray
     decisions: list[Decision]
+    units: dict[str, str] = field(default_factory=dict)
 
     @property
     def latest(self) -> Decision:
         return self.decisions[-1]
+
+    def detail(self, d: Decision) -> str:
+        return readable_detail(d.detail, self.units)
 
     def table(self) -> str:
         """Health in percent per flight, the trend lines and the verdict per flight."""
@@ -87,7 +118,7 @@ class EngineTrend:
                  f"{'flight':<14}" + "".join(f"{s:>8}" for s in short) + "  diagnosis"]
         for i, lab in enumerate(self.labels):
             d = self.decisions[i]
-            verdict = (f"{d.cls} {d.kind} since flight {d.onset}: {d.detail}" if d.detected else d.status)
+            verdict = f"{d.cls} {d.kind} since flight {d.onset}: {self.detail(d)}" if d.detected else d.status
             lines.append(f"{lab[:14]:<14}" + "".join(f"{100 * v:>8.2f}" for v in self.H[i]) + f"  {verdict}")
         lines.append(f"{'level':<14}" + "".join(f"{100 * v:>8.2f}" for v in self.level))
         lines.append(f"{'slope/flight':<14}" + "".join(f"{100 * v:>8.3f}" for v in self.slope))
@@ -99,7 +130,7 @@ class EngineTrend:
             if np.isfinite(d.bias):
                 size += f", bias {d.bias:+.4g} (sensor units)"
             lines.append(f"FAULT: {d.cls} ({d.kind} since flight {d.onset}), {size}, confidence "
-                         f"{d.confidence:.2f} (next: {d.runner_up}); {d.detail}")
+                         f"{d.confidence:.2f} (next: {d.runner_up}); {self.detail(d)}")
         else:
             lines.append(f"no fault detected (p = {d.p_value:.3g})" if np.isfinite(d.p_value) else
                          f"no fault detected ({d.status})")
@@ -122,7 +153,8 @@ def engine_trend(records: list[FlightRecord], db: GainDatabase,
         level = a + b * (H.shape[0] - 1)
     else:
         level, b, se = (H[ok][-1] if x.size else np.full(nh, np.nan)), np.full(nh, np.nan), np.full(nh, np.nan)
-    return EngineTrend(es.engine, [f.label for f in es.flights], es.h_names, H, level, b, se, dec)
+    return EngineTrend(es.engine, [f.label for f in es.flights], es.h_names, H, level, b, se, dec,
+                       detail_units(db))
 
 
 def plot_trend(tr: EngineTrend, path, truth: np.ndarray | None = None) -> None:
@@ -159,7 +191,7 @@ def plot_trend(tr: EngineTrend, path, truth: np.ndarray | None = None) -> None:
         ax.legend(fontsize=6, loc="lower left")
     for j in range(nh, rows * cols):
         axes[j // cols][j % cols].axis("off")
-    title = (f"engine {tr.engine}: {d.cls} {d.kind} from flight {d.onset} ({d.detail})" if d.detected
+    title = (f"engine {tr.engine}: {d.cls} {d.kind} from flight {d.onset} ({tr.detail(d)})" if d.detected
              else f"engine {tr.engine}: no fault detected")
     fig.suptitle(title, fontsize=9, color="red" if d.detected else "black")
     fig.tight_layout()

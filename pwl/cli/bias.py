@@ -12,32 +12,45 @@ import time
 
 import numpy as np
 
-from .output import plot_or_note
+from .output import check_output, plot_or_note
 
 HELP = "fuel-to-air ratio bias observer (seed 004) on a simulated diesel drive cycle"
 
 
 def add_arguments(p):
     p.add_argument("--case", choices=("nedc", "steps"), default="nedc",
-                   help="operating-point trajectory: NEDC-like drive cycle or injection steps at 1500 rpm")
-    p.add_argument("--urban-cycles", type=int, default=4, help="ECE-15 cycles before the extra-urban part")
-    p.add_argument("--passes", type=int, default=2, help="times the cycle is driven (the last is evaluated)")
-    p.add_argument("--seed", type=int, default=1)
+                   help="operating-point trajectory: NEDC-like drive cycle or injection steps at 1500 rpm "
+                        "(default %(default)s)")
+    p.add_argument("--urban-cycles", type=int, default=4,
+                   help="nedc: ECE-15 cycles before the extra-urban part (default %(default)s)")
+    p.add_argument("--passes", type=int, default=2,
+                   help="times the cycle is driven, >= 2; the last is evaluated (default %(default)s)")
+    p.add_argument("--seed", type=int, default=1,
+                   help="seed of the simulation's noise and spikes (default %(default)s)")
     p.add_argument("--ratio", type=float, default=1 / 80,
-                   help="observer tuning sigma_w^2 / sigma_v^2 (the paper: 1/80 slow, 1/30 fast)")
+                   help="observer tuning sigma_w^2 / sigma_v^2 (default 1/80, the paper's slow "
+                        "observer; the fast one is 1/30)")
     p.add_argument("--table-ratio", type=float, default=0.1,
-                   help="bias table noise ratio sigma_x^2 / sigma_theta^2 (exact gain law)")
-    p.add_argument("--table-law", choices=("exact", "paper"), default="exact")
-    p.add_argument("--spikes", type=float, default=0.02, help="spurious sensor spikes per second")
-    p.add_argument("--sensor-a", type=float, default=0.96, help="true sensor pole (the observer assumes 0.96)")
-    p.add_argument("--sensor-tau", type=float, default=0.4, help="true sensor delay, s (the observer assumes 0.4)")
-    p.add_argument("--model-scale", type=float, default=1.0, help="extra model drift (sec. 4 uses 1.05)")
-    p.add_argument("--hold", type=float, default=0.2, help="freeze hold time after a rule fires, s")
+                   help="bias table noise ratio sigma_x^2 / sigma_theta^2 (default %(default)g)")
+    p.add_argument("--table-law", choices=("exact", "paper"), default="exact",
+                   help="gain law of the bias table (default %(default)s)")
+    p.add_argument("--spikes", type=float, default=0.02,
+                   help="spurious sensor spikes per second (default %(default)g)")
+    p.add_argument("--sensor-a", type=float, default=0.96,
+                   help="true sensor pole per 20 ms step; the observer assumes 0.96 (default %(default)g)")
+    p.add_argument("--sensor-tau", type=float, default=0.4,
+                   help="true sensor delay, s; the observer assumes 0.4 (default %(default)g)")
+    p.add_argument("--model-scale", type=float, default=1.0,
+                   help="extra model drift, a factor on the model's output (default %(default)g; "
+                        "sec. 4 of the paper uses 1.05)")
+    p.add_argument("--hold", type=float, default=0.2,
+                   help="freeze hold time after a rule fires, s (default %(default)g)")
     p.add_argument("--freeze", nargs="*", default=[], metavar="NAME=VALUE",
                    help="freezing thresholds, e.g. model_rate=1.5 sensor_min=0.12 (names of "
                         "pwl.bias.FreezeRules: e_rate model_rate sensor_rate sensor_min sensor_max "
-                        "estimate_min estimate_max; inf switches a rule off)")
-    p.add_argument("--plot", default="pwl_bias.png", help="PNG file for the plot ('' for none)")
+                        "estimate_min estimate_max; inf switches a rule off; default: FreezeRules' own)")
+    p.add_argument("--plot", default="pwl_bias.png",
+                   help="PNG file for the plot, needs matplotlib (default %(default)s; '' for none)")
 
 
 def run(args) -> int:
@@ -50,6 +63,7 @@ def run(args) -> int:
 
     if args.passes < 2:
         raise ValueError("--passes must be >= 2 (the table learns on the first pass)")
+    check_output(args.plot)
     dt = 0.02
     if args.case == "nedc":
         one = diesel.nedc(dt=dt, urban_cycles=args.urban_cycles)
@@ -184,7 +198,7 @@ def _plot(sim, runs, k1, args, path):
     ax = fig.add_subplot(gs[2, :])
     _panel(ax, sim, res, z, f"zoom on a fuel step, observer + table, pass {last + 1}")
     ax.set_xlabel("time [s]")
-    ax.legend(fontsize=7, ncol=5)
+    ax.legend(fontsize=7, ncol=5, loc="upper right")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)

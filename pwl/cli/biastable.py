@@ -19,7 +19,7 @@ nominal by definition), then lock it (or give it a much larger noise ratio) and 
 """
 import numpy as np
 
-from .output import plot_or_note
+from .output import check_output, plot_or_note
 
 HELP = "the runtime's adaptive bias table on the turbofan: learn a sensor mismatch, then track health"
 
@@ -27,16 +27,23 @@ DEGRADED = {"fan_eff": -0.015, "hpc_eff": -0.02, "hpc_flow": -0.015, "hpt_flow":
 
 
 def add_arguments(p):
-    p.add_argument("--database", help="gain database (default: the shipped demo)")
-    p.add_argument("--learn", type=int, default=3, help="new-engine flights the table learns from")
-    p.add_argument("--ratio", type=float, default=1e3, help="table noise ratio sigma_x^2/sigma_theta^2")
-    p.add_argument("--offset", type=float, default=0.01, help="T48 mismatch at 60 %% NfR, fraction")
-    p.add_argument("--slope", type=float, default=0.01, help="extra T48 mismatch at 100 %% NfR, fraction")
+    p.add_argument("--database", help="gain database (default: the shipped data/turbofan_demo.h5)")
+    p.add_argument("--learn", type=int, default=3,
+                   help="new-engine flights the table learns from (default %(default)s)")
+    p.add_argument("--ratio", type=float, default=1e3,
+                   help="table noise ratio sigma_x^2/sigma_theta^2 (default %(default)g)")
+    p.add_argument("--offset", type=float, default=0.01,
+                   help="T48 mismatch at 60 %% NfR, fraction (default %(default)g)")
+    p.add_argument("--slope", type=float, default=0.01,
+                   help="extra T48 mismatch at 100 %% NfR, fraction (default %(default)g)")
     p.add_argument("--health", default=",".join(f"{k}={v}" for k, v in DEGRADED.items()),
-                   help="health of the degraded engine, name=value,...")
-    p.add_argument("--cruise", type=float, default=None, help="cruise duration of every flight, s")
-    p.add_argument("--seed", type=int, default=11)
-    p.add_argument("--plot", default="pwl_biastable.png", help="PNG file for the plot ('' for none)")
+                   help="health of the degraded engine, name=fraction,... (default %(default)s)")
+    p.add_argument("--cruise", type=float, default=None,
+                   help="cruise duration of every flight, s (default: the short profile's)")
+    p.add_argument("--seed", type=int, default=11,
+                   help="seed of the first flight; flight k uses seed + k (default %(default)s)")
+    p.add_argument("--plot", default="pwl_biastable.png",
+                   help="PNG file for the plot, needs matplotlib (default %(default)s; '' for none)")
 
 
 def mismatch(truth, nf_design, offset, slope):
@@ -93,6 +100,7 @@ def run(args) -> int:
     from .simulate import _pairs
 
     db = args.database or demo_paths()[0]
+    check_output(args.plot)
     print(f"T48 mismatch {100 * args.offset:g} % at 60 % NfR to {100 * (args.offset + args.slope):g} % at "
           f"100 %; table ratio {args.ratio:g}; {args.learn} learning flights")
     out = experiment(db, args.learn, args.ratio, args.offset, args.slope, _pairs(args.health, "--health"),
@@ -131,8 +139,8 @@ def _plot(out, path):
     ax.plot(t, out["true_bias"], "k", lw=1, label="true T48 sensor bias")
     ax.plot(t, out["runs"]["with table"].channel("bias_hat", "T48"), lw=0.8, label="bias table (locked)")
     ax.set_xlabel("time, min")
-    ax.set_ylabel("K")
-    ax.legend(fontsize=8)
+    ax.set_ylabel("T48 bias, K")
+    ax.legend(fontsize=8, loc="upper left")   # a fixed place: "best" is slow on long lines
     ax.grid(alpha=0.3)
     for ax, label in zip(axes[1:], ("without table", "with table")):
         r = out["runs"][label]
@@ -145,7 +153,7 @@ def _plot(out, path):
         ax.set_ylabel("health, %")
         ax.set_ylim(-5, 3)
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
+        ax.legend(fontsize=7, loc="lower left")
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)

@@ -9,17 +9,19 @@ import time
 
 import numpy as np
 
-from .output import plot_or_note
+from .output import check_output, plot_or_note
 
 HELP = "run the self-tuning model on the shipped demo database and sample flights"
 
 
 def add_arguments(p):
-    p.add_argument("--database", help="gain database (default: the shipped demo)")
-    p.add_argument("--logs", nargs="+", help="flight logs with a truth group (default: the shipped samples)")
+    p.add_argument("--database", help="gain database (default: the shipped data/turbofan_demo.h5)")
+    p.add_argument("--logs", nargs="+", metavar="LOG",
+                   help="flight logs with a truth group (default: the shipped data/flight_*.h5 samples)")
     p.add_argument("--settle", type=float, default=120.0,
-                   help="seconds at the start of a flight left out of the error figures")
-    p.add_argument("--plot", default="pwl_demo.png", help="PNG file for the plot ('' for none)")
+                   help="time at the start of a flight left out of the error figures, s (default %(default)g)")
+    p.add_argument("--plot", default="pwl_demo.png",
+                   help="PNG file for the plot, needs matplotlib (default %(default)s; '' for none)")
 
 
 def steady_mask(log, hold: float = 60.0):
@@ -54,6 +56,7 @@ def run(args) -> int:
     for p in [db_path] + list(logs):
         if not os.path.exists(p):
             raise FileNotFoundError(f"{p}: missing (the demo needs the shipped data/ folder of a checkout)")
+    check_output(args.plot)
     tuned = Estimator(db_path)
     untuned = Estimator(tuned.db, tune=False)
     print(f"database: {db_path}  ({tuned.db.trim_grid.size} trim points, "
@@ -121,7 +124,7 @@ def _plot(plots, hnames, path):
             ax.axhline(0, color="k", lw=0.5)
             ax.set_ylabel(f"{ch} error, %")
             ax.set_title(f"{name}: {ch}")
-            ax.legend(fontsize=8)
+            ax.legend(fontsize=8, loc="upper left")  # a fixed place: "best" is slow on long lines
             ax.grid(alpha=0.3)
         ax = axes[2][c]
         for j, h in enumerate(hnames):
@@ -130,8 +133,8 @@ def _plot(plots, hnames, path):
                 ax.plot(t, 100 * log.truth[h], "--", lw=0.8, color=line.get_color())
         ax.set_ylabel("health, % (dashed: truth)")
         ax.set_xlabel("time, min")
-        ax.legend(fontsize=6, ncol=2)
         ax.grid(alpha=0.3)
+    axes[2][-1].legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))  # beside the panels
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)

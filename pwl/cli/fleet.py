@@ -10,6 +10,8 @@ import json
 import os
 import sys
 
+from .output import check_output, plot_or_note
+
 HELP = "fleet benchmark: simulate a fleet with faults, diagnose it, score a diagnosis"
 
 
@@ -27,13 +29,15 @@ def add_arguments(p):
                                    "engine and flight (docs/diagnostics.md); unreadable results files "
                                    "are skipped and named, and the exit status is then 1")
     d.add_argument("results", nargs="+", help="results files or folders (walked recursively) of pwl run")
-    d.add_argument("-o", "--output", default="diagnosis.csv", help="CSV to write (default diagnosis.csv)")
+    d.add_argument("-o", "--output", default="diagnosis.csv", help="CSV to write (default %(default)s)")
     d.add_argument("--database", help="gain database (default: the one recorded in the results)")
     d.add_argument("--alpha", type=float, default=None,
                    help="false-alarm probability per engine and flight (default 1e-3)")
     d.add_argument("--kappa", type=float, default=None,
-                   help="isolation cost per free parameter of a hypothesis (default 6)")
-    d.add_argument("--no-pairs", action="store_true", help="do not test two-component changes")
+                   help="isolation cost per free parameter of a hypothesis, in units of the "
+                        "chi-square test statistic (default 6)")
+    d.add_argument("--no-pairs", action="store_true",
+                   help="do not test two-component changes (default: tested)")
     d.set_defaults(_step=run_diagnose)
 
     c = sub.add_parser("score", help="score a diagnosis CSV against a fleet's truth.csv",
@@ -41,12 +45,13 @@ def add_arguments(p):
                                    "diagnosis.csv columns engine, flight, detected, class)")
     c.add_argument("diagnosis", help="diagnosis CSV (pwl fleet diagnose, or another method's)")
     c.add_argument("truth", help="truth.csv of the fleet (pwl fleet simulate)")
-    c.add_argument("--json", action="store_true", help="print the metrics as JSON")
-    c.add_argument("--plot", help="write the confusion matrix as PNG (needs matplotlib)")
+    c.add_argument("--json", action="store_true", help="print the metrics as JSON (default: a table)")
+    c.add_argument("--plot", help="PNG file of the confusion matrix, needs matplotlib (default: none)")
     c.add_argument("--min-component", type=float, default=0.0,
-                   help="detectability magnitude of component faults, |efficiency change| (default 0: all)")
+                   help="detectability magnitude of component faults, |efficiency change| as a fraction, "
+                        "e.g. 0.01 for 1 %% (default 0: all)")
     c.add_argument("--min-sensor-sigma", type=float, default=0.0,
-                   help="detectability magnitude of sensor biases, noise sigmas (default 0: all)")
+                   help="detectability magnitude of sensor biases, in sensor noise sigmas (default 0: all)")
     c.set_defaults(_step=run_score)
 
 
@@ -100,7 +105,9 @@ def run_diagnose(args) -> int:
 
     from ..database import GainDatabase
     from ..diagnose import DiagnosisConfig, diagnose_fleet, write_diagnosis
+    from ..trending import detail_units, readable_detail
 
+    check_output(args.output)
     files = results_files(args.results)
     if not files:
         print("pwl fleet diagnose: no results files (*.estimates.h5) found", file=sys.stderr)
@@ -123,6 +130,7 @@ def run_diagnose(args) -> int:
     engines = sorted({r.engine for r in rows})
     latest = {r.engine: r for r in rows}            # rows are in time order per engine
     flagged = {e: r for e, r in latest.items() if r.detected}
+    units = detail_units(db)
     print(f"{len(engines)} engines, {len(rows)} flights -> {args.output}")
     for j, c in enumerate(centers):
         print(f"  regime {j}: steady near " + ", ".join(f"{n} {v:.4g}" for n, v in zip(db.names["p"], c)))
@@ -133,15 +141,15 @@ def run_diagnose(args) -> int:
         print(f"{nosnap} flights without a steady snapshot (not diagnosed)")
     print(f"{len(flagged)} engines with a fault at their latest flight:")
     for e, r in flagged.items():
-        what = f"{r.kind} {r.detail}" + (f" (bias {r.bias:+.4g})" if np.isfinite(r.bias) else "")
+        what = f"{r.kind} {readable_detail(r.detail, units)}"
         print(f"  {e}: {r.cls} from flight {r.onset}, {what}, confidence {r.confidence:.2f}")
     return 1 if skipped else 0
 
 
 def run_score(args) -> int:
     from ..scoring import plot_confusion, score, table
-    from .output import plot_or_note
 
+    check_output(args.plot)
     res = score(args.diagnosis, args.truth, args.min_component, args.min_sensor_sigma)
     if args.json:
         print(json.dumps(res, indent=2))

@@ -20,13 +20,15 @@ _plan = None
 
 
 def add_simulate_arguments(p):
-    p.add_argument("--engines", type=int, default=100, help="number of engines (default 100)")
-    p.add_argument("--flights", type=int, default=20, help="flights per engine (default 20)")
-    p.add_argument("--seed", type=int, default=0, help="seed of every random draw (default 0)")
-    p.add_argument("-o", "--outdir", required=True, metavar="FLEET", help="output folder")
-    p.add_argument("-j", "--workers", type=int, default=None, help="parallel processes (default: cores)")
+    p.add_argument("--engines", type=int, default=100, help="number of engines (default %(default)s)")
+    p.add_argument("--flights", type=int, default=20, help="flights per engine (default %(default)s)")
+    p.add_argument("--seed", type=int, default=0, help="seed of every random draw (default %(default)s)")
+    p.add_argument("-o", "--outdir", required=True, metavar="FLEET",
+                   help="output folder (required; created if missing)")
+    p.add_argument("-j", "--workers", type=int, default=None,
+                   help="parallel processes (default: the number of cores)")
     p.add_argument("--fault-fraction", type=float, default=0.6,
-                   help="fraction of engines with one abrupt fault (default 0.6)")
+                   help="fraction of engines with one abrupt fault, 0..1 (default %(default)g)")
 
 
 def _init_worker(plan):
@@ -132,6 +134,9 @@ def simulate_fleet(outdir, engines, flights, seed=0, workers=None, fault_fractio
 
 
 def run_simulate(args) -> int:
+    from .output import check_output
+
+    check_output(args.outdir, folder=True)
     s = simulate_fleet(args.outdir, args.engines, args.flights, args.seed, args.workers,
                        args.fault_fraction, progress=True)
     print(f"{s['outdir']}: {s['engines']} engines x {s['flights']} flights ({s['faulty_engines']} "

@@ -3,7 +3,7 @@ HELP = "print a summary of a gain database (format, axes, names and units, statu
 
 
 def add_arguments(p):
-    p.add_argument("database", help="gain database (HDF5)")
+    p.add_argument("database", help="gain database (HDF5) built by pwl build")
 
 
 def run(args) -> int:

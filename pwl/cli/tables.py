@@ -5,7 +5,7 @@ import os
 
 import numpy as np
 
-from .output import print_result
+from .output import check_output, print_result
 
 HELP = "adaptive look-up tables: seed000 (paper 000 sec. 5), battery (paper 003), bench"
 
@@ -15,22 +15,27 @@ def add_arguments(p):
                    help="seed000: learning, bias step and noise experiments, exact vs paper gains; "
                         "battery: correlated whole-table vs local updates over a battery life; "
                         "bench: 2-D exact updates per second vs numpy")
-    p.add_argument("--out", default="pwl_tables", help="folder for plots and text tables (default: pwl_tables)")
-    p.add_argument("--no-plot", action="store_true", help="print only")
-    p.add_argument("--seeds", type=int, default=10, help="seed000: random point sets averaged (default 10)")
+    p.add_argument("--out", default="pwl_tables",
+                   help="seed000, battery: folder for plots and text tables, created if missing (default %(default)s)")
+    p.add_argument("--no-plot", action="store_true",
+                   help="seed000, battery: print and write the text tables only (default: also PNG plots)")
+    p.add_argument("--seeds", type=int, default=10,
+                   help="seed000: random point sets averaged (default %(default)s)")
     p.add_argument("--n", type=int, default=None,
-                   help="seed000: iterations (1000); battery: local estimates over the life (5000)")
-    p.add_argument("--seed", type=int, default=0, help="battery: random seed")
+                   help="seed000: iterations (default 1000); battery: local estimates over the life (default 5000)")
+    p.add_argument("--seed", type=int, default=0, help="battery: random seed (default %(default)s)")
     p.add_argument("--length", type=float, default=2.0,
-                   help="battery: correlation length on the normalised temperature axis (default 2)")
-    p.add_argument("--points", type=int, default=2_000_000, help="bench: updates per timed run")
-    p.add_argument("--json", action="store_true", help="bench: print one JSON object")
+                   help="battery: correlation length on the temperature axis normalised to 0..1, "
+                        "i.e. in table spans (default %(default)g)")
+    p.add_argument("--points", type=int, default=2_000_000,
+                   help="bench: updates per timed run (default %(default)s)")
+    p.add_argument("--json", action="store_true", help="bench: print one JSON object (default: a table)")
 
 
 def run(args) -> int:
     if args.what == "bench":
         return _bench(args)
-    os.makedirs(args.out, exist_ok=True)
+    check_output(args.out, folder=True)
     return _seed000(args) if args.what == "seed000" else _battery(args)
 
 
@@ -88,7 +93,7 @@ def _seed000(args) -> int:
         ax.set_xlabel("iteration k")
         ax.set_ylabel("eq_k, %")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
+        ax.legend(fontsize=7, loc="upper right")
     ax = axes[5]
     for (c, d, law, sr, a), eq in curves.items():
         if c == "noise" and a == 0.2:
@@ -97,7 +102,7 @@ def _seed000(args) -> int:
     ax.set_xlabel("iteration k")
     ax.set_ylabel("eq_k, %")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=7, loc="upper right")
     fig.suptitle(f"Seed 000 sec. 5: adaptive table learning (mean of {res['seeds']} random point sets)")
     fig.tight_layout()
     png = os.path.join(args.out, "seed000.png")
@@ -151,7 +156,7 @@ def _battery(args) -> int:
     ax.set_xlabel("temperature, C")
     ax.set_ylabel("ohmic resistance, mOhm")
     ax.set_title("tables at the end of life")
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="upper right")
     ax.grid(alpha=0.3)
     ax = axes[0][1]
     ax.bar(nodes, r["counts"], width=3.5, color="0.6")
@@ -169,7 +174,7 @@ def _battery(args) -> int:
     ax.set_xlabel("temperature, C")
     ax.set_ylabel("|error| at end of life, mOhm")
     ax.set_title(f"never excited: RMS ratio correlated/local = {r.get('ratio_never', np.nan):.3f}")
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="upper right")
     ax.grid(alpha=0.3)
     ax = axes[1][1]
     life = sim["life"]
@@ -183,7 +188,7 @@ def _battery(args) -> int:
     ax.set_xlabel("local estimate number (battery life)")
     ax.set_ylabel("resistance, mOhm")
     ax.set_title("table nodes over the life")
-    ax.legend(fontsize=7, ncol=3)
+    ax.legend(fontsize=7, ncol=3, loc="upper left")
     ax.grid(alpha=0.3)
     fig.suptitle("Seed 003: battery ohmic resistance table, correlated ageing")
     fig.tight_layout()

@@ -1,12 +1,15 @@
 """pwl trend RESULTS...: one engine's health over its flights, trend lines and the diagnosis."""
-HELP = ("health trends and fault diagnosis of one engine over its flights (results files of pwl run, "
-        "in any order: sorted by flight time); exit status 1 when a fault is detected at the latest flight")
+HELP = ("health trends (in percent) and fault diagnosis of one engine over its flights (results files "
+        "of pwl run, in any order: sorted by flight_time, then flight_index, then file name); exit "
+        "status 1 when a fault is detected at the latest flight")
 
 
 def add_arguments(p):
-    p.add_argument("results", nargs="+", help="results files (*.estimates.h5) or folders of one engine")
+    p.add_argument("results", nargs="+",
+                   help="results files (*.estimates.h5) of pwl run, or folders holding them (walked recursively)")
     p.add_argument("--database", help="gain database (default: the one recorded in the results)")
-    p.add_argument("--plot", help="write a PNG of the health trends (needs matplotlib)")
+    p.add_argument("--plot", help="PNG file of the health trends, needs matplotlib (default: none; "
+                                  "with several engines, one file each: NAME_ENGINE.png)")
 
 
 def run(args) -> int:
@@ -16,8 +19,9 @@ def run(args) -> int:
     from ..diagnose import group_engines
     from ..trending import engine_trend, plot_trend
     from .fleet import database_of, read_flights, results_files
-    from .output import plot_or_note
+    from .output import check_output, plot_or_note
 
+    check_output(args.plot)
     records, _ = read_flights(results_files(args.results))
     if len(records) < 2:
         print("pwl trend: a trend needs at least two flights", file=sys.stderr)

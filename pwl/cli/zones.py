@@ -22,34 +22,48 @@ HELP = "k-means gain zones: SEKF vs full EKF on the chen2020 system (figures, k 
 
 
 def add_arguments(p):
-    p.add_argument("--N", type=int, default=10_000, help="random operating points (default 10000)")
-    p.add_argument("-k", "--k", type=int, default=3, help="number of zones (default 3)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the operating points and k-means")
-    p.add_argument("--runs", type=int, default=100, help="Monte-Carlo runs (default 100)")
-    p.add_argument("--steps", type=int, default=6000, help="steps per run (default 6000 = 60 s)")
-    p.add_argument("--kmax", type=int, default=10, help="k sweep 1..kmax (0: no sweep)")
-    p.add_argument("--lookup", type=int, default=41, help="lookup grid points per axis (default 41)")
+    p.add_argument("--N", type=int, default=10_000, help="random operating points (default %(default)s)")
+    p.add_argument("-k", "--k", type=int, default=3, help="number of zones (default %(default)s)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="seed of the operating points and k-means (default %(default)s)")
+    p.add_argument("--runs", type=int, default=100, help="Monte-Carlo runs (default %(default)s)")
+    p.add_argument("--steps", type=int, default=6000,
+                   help="steps per run, 10 ms each (default %(default)s = 60 s)")
+    p.add_argument("--kmax", type=int, default=10, help="k sweep 1..kmax (default %(default)s; 0: no sweep)")
+    p.add_argument("--lookup", type=int, default=41, help="lookup grid points per axis (default %(default)s)")
     p.add_argument("--label", choices=("nearest", "gain"), default="nearest",
                    help="lookup-node labels: nearest sample (default) or nearest centre to the node's gain")
     p.add_argument("--x2-power", type=int, choices=(1, 2), default=1,
-                   help="exponent of x2 in the x2 equation (docs/zones.md; default 1)")
-    p.add_argument("--bench", action="store_true", help="time SEKF vs EKF per step in this run")
-    p.add_argument("--bench-steps", type=int, default=200_000)
+                   help="exponent of x2 in the x2 equation (docs/zones.md; default %(default)s)")
+    p.add_argument("--bench", action="store_true",
+                   help="time SEKF vs EKF per step in this run (default: no timing)")
+    p.add_argument("--bench-steps", type=int, default=200_000,
+                   help="with --bench: steps per timed run (default %(default)s)")
     p.add_argument("--bench-n", default="2,4,8,12",
                    help="with --bench: state sizes of a synthetic plant for the speed-ratio scaling "
-                        "('' for none)")
+                        "(default %(default)s; '' for none)")
     p.add_argument("--plots", default="pwl_zones",
-                   help="prefix of the PNG figures ('' for none; needs matplotlib)")
-    p.add_argument("--save", help="write the k-zone record to this HDF5 file (/zones group)")
-    p.add_argument("--database", help="cluster the gains of this gain database instead")
-    p.add_argument("--out", help="with --database: write the zone-gain copy here")
+                   help="prefix of the PNG figures, PREFIX_<figure>.png; needs matplotlib "
+                        "(default %(default)s; '' for none)")
+    p.add_argument("--save", help="write the k-zone record to this HDF5 file, /zones group (default: not written)")
+    p.add_argument("--database", help="cluster the gains of this gain database instead (default: the chen2020 system)")
+    p.add_argument("--out", help="with --database: write the zone-gain copy here (default: not written)")
     p.add_argument("--logs", nargs="+", help="with --database: logs with truth to compare zone "
                    "gains with interpolated gains (default: the shipped demo flights for the demo database)")
     p.add_argument("--settle", type=float, default=120.0,
-                   help="with --logs: seconds at the start of a log left out of the error figures")
+                   help="with --logs: time at the start of a log left out of the error figures, s "
+                        "(default %(default)g)")
 
 
 def run(args) -> int:
+    import os
+
+    from .output import check_output
+
+    check_output(args.save)
+    check_output(args.out)
+    if args.plots:
+        check_output(os.path.dirname(os.path.abspath(args.plots)), folder=True)
     if args.database:
         return _run_database(args)
     from linearize.zones import make_zones, sample_gains, save_zones
@@ -322,7 +336,7 @@ def _plots(prefix, zb, runs, mc, sweep, plant):
     ax.set_xlabel("K1 (gain on x1)")
     ax.set_ylabel("K2 (gain on x2)")
     ax.set_title(f"Fig. 1: steady gains, k = {t.k} clusters")
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="upper right")   # fixed places: "best" is slow with many points
     save(fig, "fig1_gain_clusters")
 
     fig, axes = plt.subplots(1, 2, figsize=(10, 4.2))
@@ -334,7 +348,7 @@ def _plots(prefix, zb, runs, mc, sweep, plant):
     axes[1].set_xlabel("x2")
     for a in axes:
         a.set_ylabel("x1")
-        a.legend(fontsize=8, markerscale=4)
+        a.legend(fontsize=8, markerscale=4, loc="upper right")
     fig.suptitle("Fig. 2: zones in the operating space (u, x)")
     save(fig, "fig2_operating_space")
 
@@ -347,7 +361,7 @@ def _plots(prefix, zb, runs, mc, sweep, plant):
         a.plot(tt[sl], xs[sl], "--", lw=0.9, label=f"SEKF (k = {t.k})")
         a.set_ylabel("x2")
         a.grid(alpha=0.3)
-        a.legend(fontsize=8)
+        a.legend(fontsize=8, loc="upper right")
     axes[0].set_title("Fig. 3: x2, true vs EKF vs SEKF (Monte-Carlo run 0)")
     axes[1].set_title("Fig. 4: zoom (5 s)")
     axes[1].set_xlabel("time, s")
@@ -362,7 +376,7 @@ def _plots(prefix, zb, runs, mc, sweep, plant):
     ax.set_xlabel("x2 estimation error")
     ax.set_ylabel("samples")
     ax.set_title(f"Fig. 5: SEKF x2 error, {len(mc['err_s'])} runs pooled")
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="upper right")
     save(fig, "fig5_error_histogram")
 
     if sweep:
@@ -381,7 +395,7 @@ def _plots(prefix, zb, runs, mc, sweep, plant):
             a.set_xlabel("number of zones k")
             a.set_xticks(ks)
             a.grid(alpha=0.3)
-            a.legend(fontsize=8)
+            a.legend(fontsize=8, loc="upper right")
         fig.suptitle(f"k sweep, {len(sweep[0][1]['rmse_s'])} Monte-Carlo runs")
         save(fig, "k_sweep")
     return files
@@ -443,7 +457,7 @@ def _plot_database(prefix, res):
         ax.set_xlabel("time [s]")
         ax.set_ylabel(f"{tr['channel']} error [% of truth], 2-s mean")
         ax.set_title(f"{tr['log']}: interpolated, zone and full-Kalman gains")
-        ax.legend(fontsize=8)
+        ax.legend(fontsize=8, loc="upper right")
     fig.tight_layout()
     name = f"{prefix}_database.png"
     fig.savefig(name, dpi=110)
