@@ -15,8 +15,9 @@ from .database import GainDatabase
 from .grid import Axis, Grid
 from .h5io import atomic_h5, write_strings
 from .logs import Log, LogError, read_header, read_log, read_rows, resample, sample_interval
-from .runtime import (FLAG_DYN_OUTSIDE, FLAG_HELD_INPUT, FLAG_IMPLAUSIBLE, FLAG_NO_UPDATE,
-                      FLAG_NOT_STARTED, FLAG_TRIM_OUTSIDE, PackedModel, filter_loop, hat_health)
+from .runtime import (FLAG_DYN_OUTSIDE, FLAG_HELD_INPUT, FLAG_IMPLAUSIBLE, FLAG_MISFIT,
+                      FLAG_NO_UPDATE, FLAG_NOT_STARTED, FLAG_TRIM_OUTSIDE, MISFIT_SIGMAS, PackedModel,
+                      filter_loop, hat_health, misfit_flags)
 from .snapshots import SNAPSHOT_OUTPUTS, SnapshotAccumulator, Snapshots, SteadyConfig
 from .errors import PwlError, UsageError
 from .tables import LAWS, AdaptiveTable, TableError
@@ -64,6 +65,7 @@ class Result:
                 "dyn_outside": int(np.count_nonzero(f & FLAG_DYN_OUTSIDE)),
                 "not_started": int(np.count_nonzero(f & FLAG_NOT_STARTED)),
                 "implausible": int(np.count_nonzero(f & FLAG_IMPLAUSIBLE)),
+                "misfit": int(np.count_nonzero(f & FLAG_MISFIT)),
                 "updated": int(np.count_nonzero((f & (FLAG_NO_UPDATE | FLAG_NOT_STARTED)) == 0))}
 
     def save(self, path) -> None:
@@ -167,6 +169,7 @@ class Estimator:
         self.channel_units = units | {c: u for c, (u, _, _) in lc.items()}
         self.ranges = {c: (lo, hi) for c, (_, lo, hi) in lc.items()}
         self._limits = self._column_limits()
+        self._gate = self._misfit_gate()
         self._set_bias(bias or {})
         self.steady = SteadyConfig()
         self.reset(q0)
@@ -266,12 +269,12 @@ class Estimator:
         one = np.ones(n)
         TH = one if TH is None else np.ascontiguousarray(TH, dtype=np.float64)
         DE = one if DE is None else np.ascontiguousarray(DE, dtype=np.float64)
-        (U, Y, S, TH, DE), implausible = self._screen((U, Y, S, TH, DE))
         nx, nu, ny, nz, nq, nh = self.pm.dims
         if out is None or any(o not in out or out[o].shape != (n, len(self.names[o])) for o in self.names):
             out = {o: np.empty((n, len(self.names[o]))) for o in self.names}
             out["flags"] = np.empty(n, dtype=np.int64)
         flags = out.pop("flags") if "flags" in out else np.empty(n, dtype=np.int64)
+        chan_count = np.zeros((2, self._limits.shape[1]), dtype=np.int64)
         tg, dg, pm, db = self.db.trim_grid, self.db.dyn_grid, self.pm, self.db
         bg = self._b_grid
         learn = np.array([t.enabled for t in self.bias.values()], dtype=np.bool_)
@@ -284,10 +287,11 @@ class Estimator:
                     self._b_chan, self._b_vals, self._b_counts, bg.bp, bg.off, bg.strides, self._b_pidx,
                     self._b_idx, self._b_share, self._b_law, self._b_ratio, learn,
                     pm.online, pm.p_tab, self.cov, db.tuner["V_pinv"], pm.z_gains, pm.z_labels,
+                    self._limits, chan_count,
                     out["x_hat"], out["q_hat"], out["y_hat"], out["residual"], out["z_hat"],
                     out.get("bias_hat", np.empty((n, 0))), out.get("h_std", np.empty((n, 0))), flags)
-        if implausible is not None:
-            flags[implausible] |= FLAG_IMPLAUSIBLE
+        self._count_channels(chan_count)
+        misfit_flags(out["residual"], out["y_hat"], self._gate, flags)
         hat_health(out["q_hat"], db.tuner["V_pinv"], db.tuner["h_ref"], out["h_hat"])
         t = np.arange(n, dtype=np.float64) * db.dt if time is None else np.asarray(time, dtype=np.float64)
         return Result(t, out, flags, self.names)
@@ -300,47 +304,43 @@ class Estimator:
         return [list(self.db.names["u"]), list(self.db.names["y"]), list(pm.schedule_channels),
                 [th[0]], [th[1]]]
 
-    def _column_limits(self):
-        """(lo, hi) arrays per kernel array (U, Y, S, TH, DE) from the plausible ranges, in the
-        kernel's units (theta, delta: divided by T_std, P_std); None where nothing is bounded."""
+    def _column_limits(self) -> np.ndarray:
+        """(2, columns) plausible [lo, hi] of every column of the kernel's U, Y, S, TH, DE from
+        the channels' ranges, in the kernel's units (theta, delta: divided by T_std, P_std, and
+        always > 0)."""
         corr = self.db.correction
         std = [1.0, 1.0, 1.0, corr.T_std if corr else 1.0, corr.P_std if corr else 1.0]
-        out = []
-        for cols, s in zip(self._columns(), std):
-            lo = np.array([self.ranges.get(c, (-np.inf, np.inf))[0] for c in cols]) / s
-            hi = np.array([self.ranges.get(c, (-np.inf, np.inf))[1] for c in cols]) / s
-            out.append((lo, hi) if np.isfinite(lo).any() or np.isfinite(hi).any() else None)
-        return out
+        lim = []
+        for k, (cols, s) in enumerate(zip(self._columns(), std)):
+            for c in cols:
+                lo, hi = self.ranges.get(c, (-np.inf, np.inf))
+                lim.append((max(lo / s, 5e-324) if k >= 3 else lo, hi / s))
+        return np.ascontiguousarray(np.array(lim, dtype=np.float64).T)
 
-    def _screen(self, arrays):
-        """Values outside their channel's plausible range become NaN (copies; the caller's arrays
-        are not touched) so the kernel holds or skips them like missing samples; counts missing
-        (NaN, Inf or implausible) and implausible samples per channel. Returns the arrays and the
-        (n,) bool mask of samples with an implausible value (None when there was none)."""
-        out, mask, seen = [], None, set()
-        for a, cols, lim in zip(arrays, self._columns(), self._limits):
-            a2 = a.reshape(a.shape[0], -1)
-            bad = None
-            if lim is not None:
-                with np.errstate(invalid="ignore"):
-                    bad = (a2 < lim[0]) | (a2 > lim[1])
-                if bad.any():
-                    a2 = np.where(bad, np.nan, a2)
-                    a = a2.reshape(a.shape)
-                    rows = bad.any(axis=1)
-                    mask = rows if mask is None else mask | rows
-                else:
-                    bad = None
-            gone = a2.shape[0] - np.isfinite(a2).sum(axis=0)
-            for j, c in enumerate(cols):
-                if c is None or c in seen:
-                    continue
-                seen.add(c)
-                self.missing[c] = self.missing.get(c, 0) + int(gone[j])
-                if bad is not None:
-                    self.implausible[c] = self.implausible.get(c, 0) + int(bad[:, j].sum())
-            out.append(np.ascontiguousarray(a))
-        return out, mask
+    def _misfit_gate(self) -> np.ndarray:
+        """(ny,) relative misfit gate of every sensor: MISFIT_SIGMAS sensor standard deviations
+        relative to the value (the database's R over its trims, medians over the grid)."""
+        db = self.db
+        ny = db.n("y")
+        R = db.kalman["R"].reshape(-1, ny, ny)
+        sd = np.sqrt(np.median(R[:, np.arange(ny), np.arange(ny)], axis=0))
+        level = np.median(np.abs(db.trim["y"].reshape(-1, ny)), axis=0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            g = MISFIT_SIGMAS * sd / level
+        return np.where(np.isfinite(g) & (g > 0), g, np.inf)
+
+    def _count_channels(self, chan_count) -> None:
+        """Add a run's per-column missing and implausible counts to the per-channel totals (a
+        channel read twice, e.g. a sensor that is also a schedule channel, counts once)."""
+        seen = set()
+        j = 0
+        for cols in self._columns():
+            for c in cols:
+                if c is not None and c not in seen:
+                    seen.add(c)
+                    self.missing[c] = self.missing.get(c, 0) + int(chan_count[0, j])
+                    self.implausible[c] = self.implausible.get(c, 0) + int(chan_count[1, j])
+                j += 1
 
     def _split(self, log: Log, rows=slice(None)):
         """The kernel's input arrays from a log (checks presence and units of every channel)."""

@@ -38,8 +38,13 @@ FLAG_HELD_INPUT = 2       # an input, schedule or theta/delta channel was NaN: l
 FLAG_TRIM_OUTSIDE = 4     # the operating point left the trim grid (clipped or extrapolated)
 FLAG_DYN_OUTSIDE = 8      # the operating point left the dynamics grid
 FLAG_NOT_STARTED = 16     # no valid sample yet: outputs are NaN
-FLAG_IMPLAUSIBLE = 32     # a channel was outside its plausible range: treated as missing (set by
-                          # pwl.estimator before the kernel, which then holds or skips it)
+FLAG_IMPLAUSIBLE = 32     # a channel was outside its plausible range: treated as missing (held
+                          # input, or no update)
+FLAG_MISFIT = 64          # a sensed output differed from its prediction by more than the misfit
+                          # gate (MISFIT_SIGMAS sensor standard deviations): the model does not
+                          # explain the sample (unit mistake, failed sensor, wrong database); the
+                          # update still happens, the flag only reports it
+MISFIT_SIGMAS = 12.0
 
 # layout of the per-filter state vector (float64): [x_abs (nx), q (nq), u_last (nu), s_last (ns),
 # theta_last, delta_last, started]
@@ -100,6 +105,17 @@ def _bias_learn(b_chan, b_vals, b_counts, b_wts, b_rows, bm, b_frac, b_law, b_ra
             table_update(b_vals[c], b_counts[c], b_wts, b_rows, bm, res[i], b_law, b_ratio, b_frac)
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _missing(v, col, chan_count):
+    """Count a missing sample of column ``col`` (chan_count[0]; chan_count[1] too when it was a
+    finite value outside its plausible range); its flag bits."""
+    chan_count[0, col] += 1
+    if np.isfinite(v):
+        chan_count[1, col] += 1
+        return FLAG_IMPLAUSIBLE
+    return 0
+
+
 @njit(cache=True, nogil=True, fastmath={"reassoc", "contract"}, _nrt=False)
 def _steps(U, Y, S, TH, DE,
            trim_tab, t_bp, t_off, t_str, t_pidx,
@@ -107,7 +123,7 @@ def _steps(U, Y, S, TH, DE,
            dims, ex, cls, s_scale, s_corr,
            state, t_idx, d_idx,
            b_chan, b_vals, b_counts, b_bp, b_off, b_str, b_pidx, b_idx, b_share, b_law, b_ratio,
-           b_learn, online, p_tab, cov, V_pinv, z_gains, z_labels,
+           b_learn, online, p_tab, cov, V_pinv, z_gains, z_labels, lim, chan_count,
            out_x, out_q, out_yhat, out_res, out_z, out_bias, out_hstd, out_flags, work):
     """The step loop of :func:`filter_loop` (same arguments, plus its workspace ``work``).
 
@@ -150,33 +166,42 @@ def _steps(U, Y, S, TH, DE,
     ost = ode + 1
     for k in range(n):
         flags = 0
-        # ---- hold NaN/Inf inputs / schedule / theta, delta at their last valid values
+        # ---- screen every channel: NaN, Inf or outside its plausible range [lim[0], lim[1]] is
+        # missing: inputs, schedule, theta/delta are held at their last valid values (here), a
+        # sensor gives no update (below); columns of lim and chan_count: U, Y, S, TH, DE
         for j in range(nu):
             v = U[k, j]
-            if not np.isfinite(v):
-                flags |= FLAG_HELD_INPUT
-            else:
+            if np.isfinite(v) and lim[0, j] <= v <= lim[1, j]:
                 state[ou + j] = v
+            else:
+                flags |= _missing(v, j, chan_count) | FLAG_HELD_INPUT
         for j in range(ns):
             v = S[k, j]
-            if not np.isfinite(v):
-                flags |= FLAG_HELD_INPUT
-            else:
+            if np.isfinite(v) and lim[0, nu + ny + j] <= v <= lim[1, nu + ny + j]:
                 state[osl + j] = v
-        if not np.isfinite(TH[k]) or TH[k] <= 0.0:
-            flags |= FLAG_HELD_INPUT
+            else:
+                flags |= _missing(v, nu + ny + j, chan_count) | FLAG_HELD_INPUT
+        c = nu + ny + ns
+        v = TH[k]
+        if np.isfinite(v) and lim[0, c] <= v <= lim[1, c]:
+            state[oth] = v
         else:
-            state[oth] = TH[k]
-        if not np.isfinite(DE[k]) or DE[k] <= 0.0:
-            flags |= FLAG_HELD_INPUT
+            flags |= _missing(v, c, chan_count) | FLAG_HELD_INPUT
+        v = DE[k]
+        if np.isfinite(v) and lim[0, c + 1] <= v <= lim[1, c + 1]:
+            state[ode] = v
         else:
-            state[ode] = DE[k]
+            flags |= _missing(v, c + 1, chan_count) | FLAG_HELD_INPUT
         ok = True
         for j in range(ou, ost):
             if state[j] != state[j]:
                 ok = False
         if not ok:  # nothing valid yet to predict from
             flags |= FLAG_NOT_STARTED
+            for i in range(ny):
+                v = Y[k, i]
+                if not (np.isfinite(v) and lim[0, nu + i] <= v <= lim[1, nu + i]):
+                    flags |= _missing(v, nu + i, chan_count)
             out_flags[k] = flags
             for j in range(nx):
                 out_x[k, j] = np.nan
@@ -277,13 +302,15 @@ def _steps(U, Y, S, TH, DE,
             s = yh[i]
             fy = fac[cls[cy + i]]
             yk = Y[k, i]
-            if not np.isfinite(yk):          # NaN or +-Inf: no update from this sensor
+            if not (np.isfinite(yk) and lim[0, nu + i] <= yk <= lim[1, nu + i]):
+                flags |= _missing(yk, nu + i, chan_count)   # no update from this sensor
                 update = False
                 res[i] = 0.0
                 out_res[k, i] = np.nan
             else:
                 res[i] = yk / fy - s
                 out_res[k, i] = yk - s * fy
+
             out_yhat[k, i] = s * fy
         if not update:
             flags |= FLAG_NO_UPDATE
@@ -347,7 +374,7 @@ def filter_loop(U, Y, S, TH, DE,
                 dims, ex, cls, s_scale, s_corr,
                 state, t_idx, d_idx,
                 b_chan, b_vals, b_counts, b_bp, b_off, b_str, b_pidx, b_idx, b_share, b_law, b_ratio,
-                b_learn, online, p_tab, cov, V_pinv, z_gains, z_labels,
+                b_learn, online, p_tab, cov, V_pinv, z_gains, z_labels, lim, chan_count,
                 out_x, out_q, out_yhat, out_res, out_z, out_bias, out_hstd, out_flags):
     """Run the filter over n samples; state and search hints are updated in place (chunkable).
 
@@ -379,6 +406,12 @@ def filter_loop(U, Y, S, TH, DE,
     standard deviation of every health estimate, sqrt(diag(V_pinv P_qq V_pinv^T)) with P_qq the
     tuner block of P(k|k) (V_pinv (nh, nq)), unless it has no columns. Not online: p_tab, cov,
     V_pinv and out_hstd are unused (may be empty).
+
+    Screening: lim (2, nu+ny+ns+2) the plausible [lo, hi] of every column of U, Y, S, TH, DE
+    (kernel units; +-inf for none): a value outside, or NaN/Inf, is missing (an input, schedule,
+    theta or delta value is held, a sensor gives no update; FLAG_IMPLAUSIBLE when it was
+    finite); chan_count (2, nu+ny+ns+2) int64 accumulates missing and implausible samples per
+    column. (FLAG_MISFIT is set after the loop, by :func:`misfit_flags`.)
 
     Zone gains (z_gains non-empty; :mod:`linearize.zones` database zones): the gain is picked,
     not interpolated: the zone label z_labels[node] of the dynamics node nearest to the operating
@@ -434,8 +467,21 @@ def filter_loop(U, Y, S, TH, DE,
     return _steps(U, Y, S, TH, DE, trim_tab, t_bp, t_off, t_str, t_pidx, dyn_tab, d_bp, d_off,
                   d_str, d_pidx, extrapolate, dims, ex, cls, s_scale, s_corr, state, t_idx, d_idx,
                   b_chan, b_vals, b_counts, b_bp, b_off, b_str, b_pidx, b_idx, b_share, b_law,
-                  b_ratio, b_learn, online, p_tab, cov, V_pinv, z_gains, z_labels, out_x, out_q,
-                  out_yhat, out_res, out_z, out_bias, out_hstd, out_flags, work)
+                  b_ratio, b_learn, online, p_tab, cov, V_pinv, z_gains, z_labels, lim,
+                  chan_count, out_x, out_q, out_yhat, out_res, out_z, out_bias, out_hstd, out_flags, work)
+
+
+@njit(cache=True, nogil=True)
+def misfit_flags(residual, y_hat, gate, flags):
+    """Add FLAG_MISFIT to the samples where a sensor's |residual| exceeds gate * |y_hat|:
+    residual, y_hat (n, ny) from :func:`filter_loop`, gate (ny,) relative (inf: never), flags (n,)
+    in place. A separate pass: the step loop stays short."""
+    for k in range(residual.shape[0]):
+        for i in range(residual.shape[1]):
+            if abs(residual[k, i]) > gate[i] * abs(y_hat[k, i]):
+                flags[k] |= FLAG_MISFIT
+                break
+    return flags
 
 
 @njit(cache=True, nogil=True)

@@ -139,3 +139,25 @@ def test_database_without_ranges_still_runs():
     assert db.log_channels is None
     db.schedule = [("p0", False, 1.0), ("y1", True, 2.0)]
     assert Estimator(db).run(full_log(db)).counts()["implausible"] == 0
+
+
+def test_misfit_flags_where_the_model_cannot_explain_a_sensor():
+    from pwl.bench import demo_paths
+    from pwl.logs import read_log
+    from pwl.runtime import FLAG_MISFIT, MISFIT_SIGMAS
+    db_path, logs = demo_paths()
+    est = Estimator(db_path)
+    log = read_log(logs[0])
+    log = Log(log.time[:6000], {k: v[:6000] for k, v in log.channels.items()}, log.units)
+    clean = est.run(log)
+    assert clean.counts()["misfit"] == 0            # the model explains a clean flight
+    log.channels["Wf"] = log.channels["Wf"] * 2.2046     # fuel flow logged in lb/s, declared kg/s
+    res = est.run(log)
+    # independent: the gate from the database's sensor noise (R) and trims, by numpy
+    ny = est.db.n("y")
+    R = est.db.kalman["R"].reshape(-1, ny, ny)
+    gate = MISFIT_SIGMAS * np.sqrt(np.median(R[:, range(ny), range(ny)], axis=0)) / np.median(
+        np.abs(est.db.trim["y"].reshape(-1, ny)), axis=0)
+    want = np.any(np.abs(res.outputs["residual"]) > gate * np.abs(res.outputs["y_hat"]), axis=1)
+    np.testing.assert_array_equal((res.flags & FLAG_MISFIT) != 0, want)
+    assert want.mean() > 0.5
