@@ -15,9 +15,9 @@ from .database import GainDatabase
 from .grid import Axis, Grid
 from .h5io import atomic_h5, write_strings
 from .logs import Log, LogError, read_header, read_log, read_rows, resample, sample_interval
-from .runtime import (FLAG_DYN_OUTSIDE, FLAG_HELD_INPUT, FLAG_IMPLAUSIBLE, FLAG_MISFIT,
+from .runtime import (FLAG_DYN_OUTSIDE, FLAG_HEALTH, FLAG_HELD_INPUT, FLAG_IMPLAUSIBLE, FLAG_MISFIT,
                       FLAG_NO_UPDATE, FLAG_NOT_STARTED, FLAG_TRIM_OUTSIDE, MISFIT_SIGMAS, PackedModel,
-                      filter_loop, hat_health, misfit_flags)
+                      filter_loop, hat_health, report_flags)
 from .snapshots import SNAPSHOT_OUTPUTS, SnapshotAccumulator, Snapshots, SteadyConfig
 from .errors import PwlError, UsageError
 from .tables import LAWS, AdaptiveTable, TableError
@@ -66,6 +66,7 @@ class Result:
                 "not_started": int(np.count_nonzero(f & FLAG_NOT_STARTED)),
                 "implausible": int(np.count_nonzero(f & FLAG_IMPLAUSIBLE)),
                 "misfit": int(np.count_nonzero(f & FLAG_MISFIT)),
+                "health_implausible": int(np.count_nonzero(f & FLAG_HEALTH)),
                 "updated": int(np.count_nonzero((f & (FLAG_NO_UPDATE | FLAG_NOT_STARTED)) == 0))}
 
     def save(self, path) -> None:
@@ -170,6 +171,9 @@ class Estimator:
         self.ranges = {c: (lo, hi) for c, (_, lo, hi) in lc.items()}
         self._limits = self._column_limits()
         self._gate = self._misfit_gate()
+        hr = db.attrs.get("health_ranges") or {}
+        self._h_range = tuple(np.array([hr.get(h, (-np.inf, np.inf))[i] for h in db.names["h"]],
+                                       dtype=np.float64) for i in (0, 1))
         self._set_bias(bias or {})
         self.steady = SteadyConfig()
         self.reset(q0)
@@ -291,8 +295,8 @@ class Estimator:
                     out["x_hat"], out["q_hat"], out["y_hat"], out["residual"], out["z_hat"],
                     out.get("bias_hat", np.empty((n, 0))), out.get("h_std", np.empty((n, 0))), flags)
         self._count_channels(chan_count)
-        misfit_flags(out["residual"], out["y_hat"], self._gate, flags)
         hat_health(out["q_hat"], db.tuner["V_pinv"], db.tuner["h_ref"], out["h_hat"])
+        report_flags(out["residual"], out["y_hat"], self._gate, out["h_hat"], *self._h_range, flags)
         t = np.arange(n, dtype=np.float64) * db.dt if time is None else np.asarray(time, dtype=np.float64)
         return Result(t, out, flags, self.names)
 
@@ -444,6 +448,10 @@ class Estimator:
             cols[pm.theta_channel] = th * db.correction.T_std
             cols[pm.delta_channel] = de * db.correction.P_std
         raw = np.column_stack([cols[c] for c in acc.channels])
+        lo = np.array([self.ranges.get(c, (-np.inf, np.inf))[0] for c in acc.channels])
+        hi = np.array([self.ranges.get(c, (-np.inf, np.inf))[1] for c in acc.channels])
+        with np.errstate(invalid="ignore"):
+            raw = np.where((raw >= lo) & (raw <= hi), raw, np.nan)   # implausible: missing
         with np.errstate(invalid="ignore"):
             p = db.operating_point(S, th, de)
         outside = (res.flags & (FLAG_TRIM_OUTSIDE | FLAG_DYN_OUTSIDE | FLAG_NOT_STARTED)) != 0

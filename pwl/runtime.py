@@ -45,6 +45,8 @@ FLAG_MISFIT = 64          # a sensed output differed from its prediction by more
                           # explain the sample (unit mistake, failed sensor, wrong database); the
                           # update still happens, the flag only reports it
 MISFIT_SIGMAS = 12.0
+FLAG_HEALTH = 128         # a health estimate left the plant's plausible health range (e.g. an
+                          # efficiency 10 % better than new): the estimates cannot be trusted
 
 # layout of the per-filter state vector (float64): [x_abs (nx), q (nq), u_last (nu), s_last (ns),
 # theta_last, delta_last, started]
@@ -472,14 +474,19 @@ def filter_loop(U, Y, S, TH, DE,
 
 
 @njit(cache=True, nogil=True)
-def misfit_flags(residual, y_hat, gate, flags):
-    """Add FLAG_MISFIT to the samples where a sensor's |residual| exceeds gate * |y_hat|:
-    residual, y_hat (n, ny) from :func:`filter_loop`, gate (ny,) relative (inf: never), flags (n,)
-    in place. A separate pass: the step loop stays short."""
+def report_flags(residual, y_hat, gate, h_hat, h_lo, h_hi, flags):
+    """Add FLAG_MISFIT where a sensor's |residual| exceeds gate * |y_hat| and FLAG_HEALTH where a
+    health estimate is outside [h_lo, h_hi]: residual, y_hat (n, ny) from :func:`filter_loop`,
+    gate (ny,) relative (inf: never), h_hat (n, nh), h_lo, h_hi (nh,), flags (n,) in place.
+    A separate pass after the step loop (which stays short); the flags only report."""
     for k in range(residual.shape[0]):
         for i in range(residual.shape[1]):
             if abs(residual[k, i]) > gate[i] * abs(y_hat[k, i]):
                 flags[k] |= FLAG_MISFIT
+                break
+        for i in range(h_hat.shape[1]):
+            if h_hat[k, i] < h_lo[i] or h_hat[k, i] > h_hi[i]:
+                flags[k] |= FLAG_HEALTH
                 break
     return flags
 

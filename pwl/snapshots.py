@@ -117,7 +117,8 @@ class SnapshotAccumulator:
         cols = [np.ones((k, 1)), np.asarray(outside, dtype=np.float64).reshape(k, 1)]
         for a, squares in [(raw, True), (p, False)] + [(outputs[o], False) for o in self.output_names]:
             a = np.asarray(a, dtype=np.float64).reshape(k, -1)
-            ok = np.isfinite(a)
+            with np.errstate(over="ignore", invalid="ignore"):
+                ok = np.isfinite(a * a if squares else a)   # a value whose square overflows is missing
             z = np.where(ok, a, 0.0)
             cols += [ok.astype(np.float64), z] + ([z * z] if squares else [])
         rows = np.add.reduceat(np.concatenate(cols, axis=1), starts, axis=0)

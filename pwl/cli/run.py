@@ -115,7 +115,8 @@ def run(args) -> int:
 
 #: flag counts in the order they are printed, with their labels
 FLAG_LABELS = (("updated", "updated"), ("no_update", "without update"),
-               ("held_input", "input held"), ("implausible", "implausible"),
+               ("held_input", "input held"), ("implausible", "implausible"), ("misfit", "misfit"),
+               ("health_implausible", "implausible health"),
                ("trim_outside", "outside the trim grid"), ("dyn_outside", "outside the dynamics grid"),
                ("not_started", "before the first valid sample"))
 
