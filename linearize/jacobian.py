@@ -72,7 +72,7 @@ def jacobians(plant, trim: dict, h, env, method: str = "central", overrides: dic
             else:
                 err = next(iter(vals.values()))
                 raise LinearizationError(f"perturbing {getattr(plant, kind + '_names')[j]} failed in "
-                                         f"every direction: {err}")
+                                         f"every direction: {type(err).__name__}: {err}")
         cols[kind] = out
     nx, ny = x0.size, len(plant.y_names)
     rows = {"x": slice(0, nx), "y": slice(nx, nx + ny), "z": slice(nx + ny, None)}

@@ -6,7 +6,9 @@ written outside this repository. Nothing here imports a model.
 """
 from __future__ import annotations
 
+import difflib
 import importlib
+import math
 
 import numpy as np
 
@@ -23,14 +25,24 @@ class PlantProtocolError(PwlError, TypeError):
 
 def load_plant(target: str, parameters: dict | None = None):
     """Instantiate ``"package.module:ClassName"`` with keyword ``parameters``."""
+    return check_plant(import_plant(target)(**(parameters or {})))
+
+
+def import_plant(target: str):
+    """The class named by ``"package.module:ClassName"``; :class:`PlantProtocolError` naming the
+    target when the module or the class cannot be found (or the module fails to import)."""
     if ":" not in target:
         raise PlantProtocolError(f"model {target!r}: expected 'package.module:ClassName'")
     mod, cls = target.split(":", 1)
     try:
-        obj = getattr(importlib.import_module(mod), cls)
-    except (ImportError, AttributeError) as e:
-        raise PlantProtocolError(f"model {target!r} cannot be imported: {e}") from None
-    return check_plant(obj(**(parameters or {})))
+        module = importlib.import_module(mod)
+    except Exception as e:  # not found, or the module's own error while importing
+        raise PlantProtocolError(f"model {target!r} cannot be imported: {type(e).__name__}: {e}") from None
+    if not hasattr(module, cls):
+        close = difflib.get_close_matches(cls, [n for n in dir(module) if not n.startswith("_")], n=1)
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        raise PlantProtocolError(f"model {target!r}: module {mod!r} has no {cls!r}{hint}")
+    return getattr(module, cls)
 
 
 def check_plant(plant):
@@ -50,7 +62,24 @@ def check_plant(plant):
         raise PlantProtocolError(f"plant.units has no entry for {', '.join(nounit)}")
     if getattr(plant, "correction", None) is not None and not hasattr(plant, "theta_delta"):
         raise PlantProtocolError("a plant with a correction needs theta_delta(env)")
+    nounit = [c for c in _log_channel_names(plant) if c not in plant.units]
+    if nounit:
+        raise PlantProtocolError(f"plant.units has no entry for the log channel(s) {', '.join(nounit)}")
+    _check_ranges(plant)
     return plant
+
+
+def _check_ranges(plant) -> None:
+    """``plant.ranges`` (optional): channel -> (lo, hi) numbers, lo < hi, for channels with a unit."""
+    for c, r in (getattr(plant, "ranges", None) or {}).items():
+        try:
+            lo, hi = (float(v) for v in r)
+        except (TypeError, ValueError):
+            raise PlantProtocolError(f"plant.ranges[{c!r}] = {r!r}: expected (lo, hi) numbers") from None
+        if not lo < hi:
+            raise PlantProtocolError(f"plant.ranges[{c!r}] = {r!r}: lo must be below hi")
+        if c not in plant.units:
+            raise PlantProtocolError(f"plant.ranges names {c!r}, which has no entry in plant.units")
 
 
 def names(plant, kind: str) -> list[str]:
@@ -98,3 +127,32 @@ def schedule(plant) -> list[tuple[str, bool, float]]:
     """How the runtime computes each scheduling variable from a log: (channel, corrected, scale)."""
     s = getattr(plant, "schedule", None) or {}
     return [tuple(s.get(p, (p, False, 1.0))) for p in plant.p_names]
+
+
+def _log_channel_names(plant) -> list[str]:
+    """The log channels the runtime filter reads, once each: inputs, sensed outputs, schedule
+    channels, then the correction's theta and delta channels."""
+    chans = names(plant, "u") + names(plant, "y") + [c for c, _, _ in schedule(plant)]
+    corr = getattr(plant, "correction", None)
+    if corr is not None:
+        chans += [corr["theta"], corr["delta"]]
+    return list(dict.fromkeys(chans))
+
+
+def health_ranges(plant) -> dict[str, list[float]]:
+    """Health parameter -> [lo, hi] plausible range, from ``plant.ranges`` (health names only);
+    what a gain database stores as attrs["health_ranges"] (estimates outside are flagged)."""
+    ranges = getattr(plant, "ranges", None) or {}
+    return {h: [float(ranges[h][0]), float(ranges[h][1])] for h in plant.h_names if h in ranges}
+
+
+def log_channels(plant) -> dict[str, tuple[str, float, float]]:
+    """Every log channel the runtime filter reads -> (unit, lo, hi): the plant's unit and its
+    plausible range from ``plant.ranges`` ((-inf, inf) where the plant declares none); what a
+    gain database stores as ``log_channels``."""
+    ranges = getattr(plant, "ranges", None) or {}
+    out = {}
+    for c in _log_channel_names(plant):
+        lo, hi = ranges.get(c, (-math.inf, math.inf))
+        out[c] = (plant.units[c], float(lo), float(hi))
+    return out

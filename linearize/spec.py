@@ -39,6 +39,7 @@ Example (every key but ``model.plant``, ``trim_grid`` and ``dynamics_grid`` has 
 """
 from __future__ import annotations
 
+import numbers
 import tomllib
 from dataclasses import dataclass, field
 
@@ -77,7 +78,11 @@ class BuildSpec:
     @classmethod
     def load(cls, path) -> "BuildSpec":
         with open(path, "rb") as fh:
-            text = fh.read().decode()
+            raw = fh.read()
+        try:
+            text = raw.decode()
+        except UnicodeDecodeError as e:
+            raise SpecError(f"{path}: not UTF-8 text ({e})") from None
         return cls.parse(text, str(path))
 
     @classmethod
@@ -86,71 +91,133 @@ class BuildSpec:
             d = tomllib.loads(text)
         except tomllib.TOMLDecodeError as e:
             raise SpecError(f"{path}: not valid TOML ({e})") from None
-
-        def section(name, required=False):
-            s = d.get(name)
-            if s is None:
-                if required:
-                    raise SpecError(f"{path}: section [{name}] is missing")
-                return {}
-            if not isinstance(s, dict):
-                raise SpecError(f"{path}: [{name}] must be a table")
-            return s
-
-        model, build, kal, tun = section("model", True), section("build"), section("kalman"), section("tuners")
         known = {"model": {"plant", "parameters"}, "build": {"power_axis", "dt", "differences", "out_of_range",
                                                            "perturbation", "health_reference", "dynamics_hold"},
                  "kalman": {"q_x", "q_h", "r"}, "tuners": {"method", "n", "targets", "health_sigma"}}
-        for name, keys in known.items():
-            extra = set(section(name)) - keys
-            if extra:
-                raise SpecError(f"{path}: unknown key(s) {sorted(extra)} in [{name}] (known: {sorted(keys)})")
         extra = set(d) - set(known) - {"trim_grid", "dynamics_grid"}
         if extra:
             raise SpecError(f"{path}: unknown section(s) {sorted(extra)}")
+        model, build, kal, tun = (_Table(d, name, path, keys) for name, keys in known.items())
         if "plant" not in model:
             raise SpecError(f"{path}: [model] plant = 'package.module:Class' is missing")
-        policy = build.get("out_of_range", "clip")
-        if policy not in POLICIES:
-            raise SpecError(f"{path}: [build] out_of_range = {policy!r} is not one of {POLICIES}")
-
-        def grid(name):
-            axes = section(name, True)
-            if not axes:
-                raise SpecError(f"{path}: [{name}] has no axes")
-            try:
-                return Grid([Axis(k, np.asarray(v, dtype=np.float64)) for k, v in axes.items()], policy)
-            except (AxisError, ValueError, TypeError) as e:
-                raise SpecError(f"{path}: [{name}]: {e}") from None
-
-        tg, dg = grid("trim_grid"), grid("dynamics_grid")
-        power = build.get("power_axis", tg.names[-1])
-        if power not in tg.names:
-            raise SpecError(f"{path}: [build] power_axis {power!r} is not a trim grid axis {tg.names}")
-        dt = float(build.get("dt", 0.015))
+        policy = build.string("out_of_range", "clip", POLICIES)
+        tg, dg = _grid(d, "trim_grid", path, policy), _grid(d, "dynamics_grid", path, policy)
+        power = build.string("power_axis", tg.names[-1], tg.names)
+        dt = build.number("dt", 0.015)
         if not dt > 0:
             raise SpecError(f"{path}: [build] dt = {dt} must be positive")
-        diff = build.get("differences", "central")
-        if diff not in ("central", "forward"):
-            raise SpecError(f"{path}: [build] differences = {diff!r} must be 'central' or 'forward'")
-        method = tun.get("method", "subset")
-        if method not in ("subset", "optimal"):
-            raise SpecError(f"{path}: [tuners] method = {method!r} must be 'subset' or 'optimal'")
-        targets = tun.get("targets", ["h"])
-        if isinstance(targets, str):
-            targets = [targets]
-        return cls(plant=model["plant"], parameters=dict(model.get("parameters", {})), trim_grid=tg,
-                   dyn_grid=dg, power_axis=power, dt=dt, differences=diff,
-                   perturbation=dict(build.get("perturbation", {})),
-                   health_reference=dict(build.get("health_reference", {})),
-                   dynamics_hold={k: float(v) for k, v in build.get("dynamics_hold", {}).items()},
-                   q_x=kal.get("q_x", 1e-3), q_h=kal.get("q_h", 1e-4), r=dict(kal.get("r", {})),
-                   tuner_method=method, n_tuners=int(tun.get("n", 4)), targets=list(targets),
-                   health_sigma=tun.get("health_sigma", 0.02), text=text, path=path)
+        return cls(plant=model.string("plant", None), parameters=model.table("parameters"), trim_grid=tg,
+                   dyn_grid=dg, power_axis=power, dt=dt,
+                   differences=build.string("differences", "central", ("central", "forward")),
+                   perturbation=build.numbers("perturbation"), health_reference=build.numbers("health_reference"),
+                   dynamics_hold=build.numbers("dynamics_hold"),
+                   q_x=kal.number_or_numbers("q_x", 1e-3), q_h=kal.number_or_numbers("q_h", 1e-4),
+                   r=kal.numbers("r"), tuner_method=tun.string("method", "subset", ("subset", "optimal")),
+                   n_tuners=tun.integer("n", 4),
+                   targets=tun.strings("targets", ["h"]),
+                   health_sigma=tun.number_or_numbers("health_sigma", 0.02), text=text, path=path)
+
+
+def is_number(v) -> bool:
+    """True for a real number (booleans are not numbers here)."""
+    return isinstance(v, numbers.Real) and not isinstance(v, bool)
+
+
+class _Table:
+    """One section of a spec, with typed getters that name the file, section and key when a value
+    has the wrong type."""
+
+    def __init__(self, doc: dict, name: str, path: str, keys: set):
+        self.name, self.path = name, path
+        t = doc.get(name, {})
+        if not isinstance(t, dict):
+            raise SpecError(f"{path}: [{name}] must be a table")
+        extra = set(t) - keys
+        if extra:
+            raise SpecError(f"{path}: unknown key(s) {sorted(extra)} in [{name}] (known: {sorted(keys)})")
+        self.t = t
+
+    def __contains__(self, key):
+        return key in self.t
+
+    def _wrong(self, key, expected):
+        return SpecError(f"{self.path}: [{self.name}] {key} = {self.t[key]!r}: expected {expected}")
+
+    def number(self, key, default) -> float:
+        v = self.t.get(key, default)
+        if not is_number(v):
+            raise self._wrong(key, "a number")
+        return float(v)
+
+    def integer(self, key, default) -> int:
+        v = self.t.get(key, default)
+        if not (is_number(v) and float(v).is_integer()):
+            raise self._wrong(key, "an integer")
+        return int(v)
+
+    def string(self, key, default, choices=None) -> str:
+        v = self.t.get(key, default)
+        if not isinstance(v, str):
+            raise self._wrong(key, "a string")
+        if choices is not None and v not in choices:
+            raise self._wrong(key, f"one of {list(choices)}")
+        return v
+
+    def strings(self, key, default) -> list:
+        """A list of strings (a single string is a list of one)."""
+        v = self.t.get(key, default)
+        if isinstance(v, str):
+            return [v]
+        if not (isinstance(v, list) and all(isinstance(s, str) for s in v)):
+            raise self._wrong(key, "a string or a list of strings")
+        return list(v)
+
+    def table(self, key) -> dict:
+        v = self.t.get(key, {})
+        if not isinstance(v, dict):
+            raise self._wrong(key, "a table {name = value, ...}")
+        return dict(v)
+
+    def numbers(self, key) -> dict:
+        """A table of numbers (name -> float)."""
+        v = self.table(key)
+        if not all(is_number(x) for x in v.values()):
+            raise self._wrong(key, "a table of numbers {name = number, ...}")
+        return {k: float(x) for k, x in v.items()}
+
+    def number_or_numbers(self, key, default):
+        """A number, or a table of numbers {name = number, default = number}."""
+        v = self.t.get(key, default)
+        if isinstance(v, dict):
+            return self.numbers(key)
+        if not is_number(v):
+            raise self._wrong(key, "a number or a table {name = number, default = number}")
+        return float(v)
+
+
+def _grid(doc: dict, name: str, path: str, policy: str) -> Grid:
+    """The grid of section ``name``: one axis per key, each a list of numbers."""
+    axes = doc.get(name)
+    if axes is None:
+        raise SpecError(f"{path}: section [{name}] is missing")
+    if not isinstance(axes, dict) or not axes:
+        raise SpecError(f"{path}: [{name}] must be a table of axes (name = [breakpoints])")
+    out = []
+    for k, v in axes.items():
+        if not (isinstance(v, list) and all(is_number(x) for x in v)):
+            raise SpecError(f"{path}: [{name}] {k} = {v!r}: expected a list of numbers (breakpoints)")
+        try:
+            out.append(Axis(k, np.asarray(v, dtype=np.float64)))
+        except AxisError as e:
+            raise SpecError(f"{path}: [{name}]: {e}") from None
+    return Grid(out, policy)
 
 
 def per_channel(value, names, what: str, where: str) -> np.ndarray:
     """A scalar or a name -> value table as an array over ``names`` (names the unknown key)."""
+    values = value.values() if isinstance(value, dict) else [value]
+    if not all(is_number(v) for v in values):
+        raise SpecError(f"{where}: {what} = {value!r}: expected a number or a table of numbers")
     if isinstance(value, dict):
         unknown = set(value) - set(names) - {"default"}
         if unknown:

@@ -22,7 +22,7 @@ import numpy as np
 from numba import njit
 
 from . import gaspath as gp
-from .turbofan import H_NAMES, Y_IDX, Z_IDX, PlantError, Turbofan
+from .turbofan import H_NAMES, Y_IDX, Z_IDX, PlantError, Turbofan, check_health
 
 DT = 0.015
 
@@ -280,22 +280,24 @@ def steady_ru_line(model: Turbofan, nfr=(50.0, 56.0, 62.0, 70.0, 80.0, 90.0, 100
 
 
 def _health_array(health, n, t):
+    """Health as a (1, 10) or (n, 10) array; HealthError (a ValueError) names an unknown
+    parameter or a value outside ``H_RANGE``."""
     if health is None:
         return np.zeros((1, 10))
     if callable(health):
         H = np.asarray(health(t), dtype=np.float64)
     elif isinstance(health, dict):
+        check_health(health)
         H = np.zeros((1, 10))
         for k, v in health.items():
-            if k not in H_NAMES:
-                raise ValueError(f"unknown health parameter {k!r}; known: {', '.join(H_NAMES)}")
             H[0, H_NAMES.index(k)] = float(v)
     else:
         H = np.asarray(health, dtype=np.float64)
     if H.ndim == 1:
         H = H.reshape(1, -1)
-    if H.shape not in ((1, 10), (n, 10)) or not np.all(np.isfinite(H)):
+    if H.shape not in ((1, 10), (n, 10)):
         raise ValueError(f"health must be 10 fractions, or (n, 10) per sample; got shape {H.shape}")
+    check_health(dict(zip(H_NAMES, H.T)))
     return np.ascontiguousarray(H)
 
 

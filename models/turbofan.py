@@ -19,6 +19,10 @@ class PlantError(RuntimeError):
     """A solve that did not converge (or inputs outside the model's valid region)."""
 
 
+class HealthError(ValueError):
+    """A health parameter the model does not have, or a value outside :data:`H_RANGE`."""
+
+
 #: the design specification (sea-level static ISA take-off, corrected fan speed 100 %)
 DEFAULTS = {
     # design cycle
@@ -59,16 +63,42 @@ Z_NAMES = ("Fn", "T40", "SmFan", "SmLPC", "SmHPC")
 H_NAMES = ("fan_eff", "fan_flow", "lpc_eff", "lpc_flow", "hpc_eff", "hpc_flow",
            "hpt_eff", "hpt_flow", "lpt_eff", "lpt_flow")
 P_NAMES = ("alt", "Mach", "NfR")
+#: the range of every health fraction (-0.02 = 2 % loss): beyond 10 % a component has failed
+#: rather than degraded, far outside what its map represents
+H_RANGE = (-0.1, 0.1)
 UNITS = {"Nf": "rpm", "Nc": "rpm", "Wf": "kg/s", "T24": "K", "Ps30": "Pa", "T30": "K", "T48": "K",
          "P50": "Pa", "P15": "Pa", "Fn": "N", "T40": "K", "SmFan": "%", "SmLPC": "%", "SmHPC": "%",
          **{h: "-" for h in H_NAMES}, "alt": "m", "Mach": "-", "NfR": "%", "T2": "K", "P2": "Pa",
          "dTamb": "K", "TRA": "%", "NfR_demand": "%"}
+#: plausible range of every log channel the estimator reads, in UNITS (spool speeds: see
+#: SPEED_RANGE). Wide enough for the trim grid of specs/turbofan_demo.toml on days from ISA-30 K to
+#: ISA+30 K and for the shipped flights; narrow enough that the usual unit mistakes fall outside:
+#: pressures in kPa, hPa, bar or psi, T2 in degC or degF, fuel flow in g/s or kg/h, speeds in %.
+RANGES = {"Wf": (0.01, 6.0), "T24": (150.0, 700.0), "T30": (150.0, 1200.0), "T48": (150.0, 1700.0),
+          "Ps30": (5e3, 1e7), "P50": (3e3, 5e5), "P15": (3e3, 5e5), "T2": (170.0, 380.0),
+          "P2": (5e3, 2e5), "alt": (-500.0, 15000.0), "Mach": (0.0, 1.0)}
+#: plausible range of the spool speeds Nf, Nc: fractions of their design speeds
+SPEED_RANGE = (0.1, 1.3)
 # station indices of y and z in the station vector
 Y_IDX = np.array([gp.S_NFRPM, gp.S_NCRPM, gp.S_T24, gp.S_PS3, gp.S_T3, gp.S_T48, gp.S_P50, gp.S_P17])
 Z_IDX = np.array([gp.S_FN, gp.S_T4, gp.S_SMF, gp.S_SML, gp.S_SMH])
 
 TOL = 1e-12          # max |residual| (relative flow / power errors) for convergence
 MAXIT = 60
+
+
+def check_health(health: dict) -> None:
+    """Raise :class:`HealthError` naming the first unknown name or out-of-range value of
+    ``health`` (name -> fraction, or an array of fractions over time)."""
+    lo, hi = H_RANGE
+    for name, v in health.items():
+        if name not in H_NAMES:
+            raise HealthError(f"unknown health parameter {name!r}; known: {', '.join(H_NAMES)}")
+        v = np.asarray(v, dtype=np.float64)
+        bad = v[~((v >= lo) & (v <= hi))]  # NaN is out of range too
+        if bad.size:
+            raise HealthError(f"health parameter {name} = {bad[0]:g} is outside the allowed range "
+                              f"{lo:g}..{hi:g} (fractions: -0.02 is a 2 % loss)")
 
 
 def _merge(defaults, overrides):
@@ -223,6 +253,9 @@ class Turbofan:
         self.Nf_design = self.spec["Nf_design"]
         self.Nc_design = self.spec["Nc_design"]
         self.units = dict(UNITS)
+        self.ranges = {**RANGES, "Nf": tuple(f * self.Nf_design for f in SPEED_RANGE),
+                       "Nc": tuple(f * self.Nc_design for f in SPEED_RANGE),
+                       **{h: H_RANGE for h in H_NAMES}}
         self.h_ref = np.zeros(len(H_NAMES))
         # central-difference perturbations: relative for x and u, absolute (fractions) for health
         self.perturbation = {"Nf": 1e-3, "Nc": 1e-3, "Wf": 1e-3, **{h: 1e-3 for h in H_NAMES}}

@@ -1,10 +1,15 @@
-"""A test double for tests/test_build.py: the linear example plant, slowed down and counting its
-trims (module-level counter), importable by a build running in another process."""
+"""Test doubles for the build tests, importable by a build running in another process (a spec
+names them as ``slow_plant:Class``): the linear example plant slowed down and counting its trims
+(module-level counter), and one that raises its own exceptions at chosen points."""
 import time
+
+import numpy as np
 
 from models.linear import LinearPlant
 
 CALLS = {"trim": 0}
+#: levels at which every FailingPlant's trims fail too (a plant bug that is fixed later)
+BROKEN_LEVELS = set()
 
 
 class SlowPlant(LinearPlant):
@@ -19,3 +24,36 @@ class SlowPlant(LinearPlant):
         CALLS["trim"] += 1
         time.sleep(self.delay)
         return super().trim(p, h, env, guess)
+
+
+class MapError(Exception):
+    """A plant's own exception that cannot be rebuilt from its pickle (two required arguments),
+    as many are: it cannot come back from a worker process as itself."""
+
+    def __init__(self, level, power):
+        super().__init__(f"no steady state at level {level:g}, power {power:g}")
+
+
+class FailingPlant(LinearPlant):
+    """Trims raise :class:`MapError` at ``trim_points`` ([level, power] pairs) and at the levels
+    of :data:`BROKEN_LEVELS`; ``evaluate`` raises KeyError for a non-zero health at
+    ``jacobian_levels`` (so the health columns of the Jacobians fail in both directions)."""
+
+    def __init__(self, trim_points=(), jacobian_levels=()):
+        super().__init__()
+        self.trim_points = [tuple(map(float, p)) for p in trim_points]
+        self.jacobian_levels = [float(v) for v in jacobian_levels]
+
+    def parameters(self):
+        return {"trim_points": self.trim_points, "jacobian_levels": self.jacobian_levels}
+
+    def trim(self, p, h, env, guess=None):
+        level, power = map(float, p)
+        if (level, power) in self.trim_points or level in BROKEN_LEVELS:
+            raise MapError(level, power)
+        return super().trim(p, h, env, guess)
+
+    def evaluate(self, x, u, h, env):
+        if float(env[0]) in self.jacobian_levels and np.any(np.asarray(h) != 0):
+            raise KeyError("health map missing")
+        return super().evaluate(x, u, h, env)

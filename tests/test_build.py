@@ -227,11 +227,21 @@ def test_interrupted_build_resumes(tmp_path):
     np.testing.assert_array_equal(db.kalman["K"], full.kalman["K"])
 
 
-def test_parts_of_another_spec_are_refused(tmp_path):
+def test_parts_are_reused_for_other_tuners_and_cleared_for_another_grid(tmp_path, capsys):
+    """Kept parts serve a spec that differs in [tuners] only (phases 3-4); another trim grid
+    removes them, saying so."""
     out = tmp_path / "x.h5"
     build(spec(), out, executor=SerialExecutor(), progress=False, log=quiet, keep_parts=True)
-    with pytest.raises(Exception, match="different spec"):
-        build(spec("optimal"), out, executor=SerialExecutor(), progress=False, log=quiet)
+    build(spec("optimal"), out, executor=SerialExecutor(), progress=False, log=quiet, keep_parts=True)
+    assert capsys.readouterr().err.splitlines() == [
+        f"resuming: reusing 12 of 12 trim points from {out}.parts/",
+        f"resuming: reusing 4 of 4 dynamics points from {out}.parts/"]
+    other = BuildSpec.parse(SPEC.format(method="subset").replace("level = [0, 1, 2]", "level = [0, 1, 3]"),
+                            "other.toml")
+    db = build(other, out, executor=SerialExecutor(), progress=False, log=quiet)
+    assert capsys.readouterr().err.splitlines() == [
+        f"removed 7 file(s) from {out}.parts/: partial results of a build with another spec or plant"]
+    assert db.trim_grid.axes[0].values.tolist() == [0, 1, 3] and not (tmp_path / "x.h5.parts").exists()
 
 
 def test_process_pool_gives_the_same_database(tmp_path, linear_db):

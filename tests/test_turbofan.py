@@ -8,6 +8,7 @@ perturbation Jacobian versus the simulated step response, and trims versus simul
 """
 import json
 import math
+import os
 
 import numpy as np
 import pytest
@@ -417,3 +418,54 @@ def test_pwl_simulate_writes_a_readable_log(tmp_path, model):
     log2 = read_log(csv)
     np.testing.assert_allclose(log2.channels["T48"], log2.truth["T48"], rtol=1e-15)
     assert main(["simulate", "-o", str(csv), "--health", "bogus=1"]) == 2
+
+
+# ---- plausible ranges of the log channels -----------------------------------------------------------
+def _outside(ranges, values: dict) -> list[str]:
+    """Channels of ``values`` (name -> array) with a value outside its range: 'name: min..max'."""
+    out = []
+    for c, v in values.items():
+        lo, hi = ranges[c]
+        v = np.asarray(v, dtype=np.float64)
+        if not np.all((v >= lo) & (v <= hi)):
+            out.append(f"{c}: {v.min():g}..{v.max():g} outside {lo:g}..{hi:g}")
+    return out
+
+
+def test_ranges_hold_the_shipped_flights(model):
+    from linearize.plant import log_channels
+    from pwl.logs import read_log
+
+    channels = list(log_channels(model))
+    assert set(model.ranges) == set(channels)
+    for name in ("flight_new.h5", "flight_degraded.h5"):
+        path = os.path.join(os.path.dirname(__file__), "..", "data", name)
+        log = read_log(path)
+        assert not _outside(model.ranges, {c: log.channels[c] for c in channels}), path
+
+
+def test_ranges_hold_the_demo_grid_on_hot_and_cold_days_and_catch_unit_mistakes(model):
+    """Trims at every node of the demo spec's trim grid (standard day), and at its corners and
+    middles on days ISA-30 K and ISA+30 K."""
+    from linearize.spec import BuildSpec
+
+    grid = BuildSpec.load(os.path.join(os.path.dirname(__file__), "..", "specs", "turbofan_demo.toml")).trim_grid
+    points = [(p, 0.0) for p in grid.nodes()]
+    points += [(np.array([alt, mach, nfr]), dT) for alt in (0.0, 6000.0, 12000.0) for mach in (0.0, 0.4, 0.85)
+               for nfr in (60.0, 80.0, 100.0) for dT in (-30.0, 30.0)]
+    values = {}
+    for p, dT in points:
+        env = np.array([p[0], p[1], dT])
+        t = model.trim(p, None, env)
+        T2, P2 = model.inlet(env)
+        row = {"Wf": t["u"][0], **dict(zip(model.y_names, t["y"])), "alt": p[0], "Mach": p[1], "T2": T2, "P2": P2}
+        for c, v in row.items():
+            values.setdefault(c, []).append(v)
+    assert not _outside(model.ranges, values)
+    # the same values in a usual wrong unit fall outside
+    wrong = {"Ps30": np.array(values["Ps30"]) / 1e3, "P15": np.array(values["P15"]) / 1e5,
+             "P2": np.array(values["P2"]) / 6894.76, "T2": np.array(values["T2"]) - 273.15,
+             "Wf": np.array(values["Wf"]) * 1e3, "Nf": 100.0 * np.array(values["Nf"]) / model.Nf_design}
+    for c, v in wrong.items():
+        lo, hi = model.ranges[c]
+        assert np.all((v < lo) | (v > hi)), c

@@ -6,10 +6,17 @@ health parameters per sample. Units are the model's (``models.turbofan.UNITS``).
 """
 import time
 
+from ..errors import PwlError
+
 HELP = "simulate a turbofan flight (profile, health, sensor noise) and write a flight log"
 
 
+class SimulateError(PwlError, ValueError):
+    """A ``pwl simulate`` input that cannot be used, or a flight the model cannot fly (named)."""
+
+
 def _pairs(text, what):
+    """``"a=1,b=2"`` -> {"a": 1.0, "b": 2.0}; :class:`SimulateError` naming the option ``what``."""
     out = {}
     if not text:
         return out
@@ -18,13 +25,25 @@ def _pairs(text, what):
         if not item:
             continue
         if "=" not in item:
-            raise ValueError(f"{what}: expected name=value, got {item!r}")
+            raise SimulateError(f"{what}: expected name=value, got {item!r}")
         k, v = item.split("=", 1)
         try:
             out[k.strip()] = float(v)
         except ValueError:
-            raise ValueError(f"{what}: {v!r} is not a number (in {item!r})") from None
+            raise SimulateError(f"{what}: {v!r} is not a number (in {item!r})") from None
     return out
+
+
+def _health(text, what):
+    """Health fractions of option ``what``, checked against the model's names and range."""
+    from models.turbofan import HealthError, check_health
+
+    health = _pairs(text, what)
+    try:
+        check_health(health)
+    except HealthError as e:
+        raise SimulateError(f"{what}: {e}") from None
+    return health
 
 
 def add_arguments(p):
@@ -54,25 +73,27 @@ def run(args) -> int:
     import numpy as np
 
     from models.flight import DT, drift, flight_profile, simulate
-    from models.turbofan import H_NAMES, Turbofan
+    from models.turbofan import PlantError, Turbofan
 
     from ..logs import Log, write_log
 
-    start = _pairs(args.health, "--health")
-    bad = set(start) - set(H_NAMES)
+    start = _health(args.health, "--health")
     if args.health_end is not None:
-        end = _pairs(args.health_end, "--health-end")
-        bad |= set(end) - set(H_NAMES)
-    if bad:
-        raise ValueError(f"unknown health parameters {sorted(bad)}; known: {', '.join(H_NAMES)}")
+        end = _health(args.health_end, "--health-end")
     if args.noise_scale < 0:
-        raise ValueError("--noise-scale must be >= 0")
-    prof = flight_profile(args.flight, _pairs(args.durations, "--durations"), args.cruise_alt,
-                          args.cruise_mach, args.dtamb, DT, args.seed, not args.no_dither)
+        raise SimulateError(f"--noise-scale {args.noise_scale:g} must be >= 0")
+    try:  # the profile's own checks: phase names, durations, cruise altitude and Mach
+        prof = flight_profile(args.flight, _pairs(args.durations, "--durations"), args.cruise_alt,
+                              args.cruise_mach, args.dtamb, DT, args.seed, not args.no_dither)
+    except ValueError as e:
+        raise SimulateError(f"flight profile: {e}") from None
     health = drift(start, end, prof["time"]) if args.health_end is not None else start
     model = Turbofan()
     t0 = time.perf_counter()
-    r = simulate(model, prof, health=health, seed=args.seed, noise_scale=args.noise_scale)
+    try:
+        r = simulate(model, prof, health=health, seed=args.seed, noise_scale=args.noise_scale)
+    except PlantError as e:
+        raise SimulateError(f"the model cannot fly this flight: {e}") from None
     wall = time.perf_counter() - t0
     attrs = dict(r["attrs"])
     attrs.update({"profile": args.flight, "health_start": start,

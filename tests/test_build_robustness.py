@@ -1,0 +1,368 @@
+"""The builder when things go wrong: a plant's own exceptions (named with the grid point and the
+plant), bad specs and `pwl simulate` inputs (one-line named errors, exit code 2), leftovers of
+failed builds (reused or cleared), a killed build (no orphan workers), progress off a terminal,
+no RuntimeWarning from a turbofan build, and the plausible log-channel ranges it records.
+
+The plants are the test doubles of tests/slow_plant.py (the linear example plant, which makes
+reference values exact) and the turbofan on a tiny grid."""
+import io
+import os
+import signal
+import subprocess
+import sys
+import time
+import warnings
+
+import numpy as np
+import pytest
+
+import slow_plant
+from linearize.build import BuildError, Progress, SerialExecutor, build
+from linearize.spec import BuildSpec
+from pwl.cli import main
+from pwl.database import GainDatabase
+
+SPEC = """
+[model]
+plant = "slow_plant:FailingPlant"
+parameters = {parameters}
+[trim_grid]
+level = [0, 1, 2]
+power = [0, 0.5, 1.0, 1.5]
+[dynamics_grid]
+level = [0, 2]
+power = [0.25, 1.25]
+[build]
+dt = 0.05
+[tuners]
+n = 2
+"""
+LINES = {level: [[level, p] for p in (0, 0.5, 1.0, 1.5)] for level in (0, 1, 2)}
+
+
+def spec_text(parameters="{}"):
+    return SPEC.format(parameters=parameters)
+
+
+def write_spec(tmp_path, parameters="{}", name="s.toml"):
+    path = tmp_path / name
+    path.write_text(spec_text(parameters))
+    return str(path)
+
+
+def quiet(*a, **k):
+    pass
+
+
+def serial_build(text, out, **kw):
+    return build(BuildSpec.parse(text, "s.toml"), out, executor=SerialExecutor(), progress=False,
+                 log=quiet, **kw)
+
+
+def run_cli(capsys, *argv):
+    """``pwl ARGV`` in this process: (exit code, stderr lines)."""
+    code = main(list(argv))
+    return code, capsys.readouterr().err.splitlines()
+
+
+# ---- 1. a plant's own exceptions name the grid point and the plant -----------------------------
+def test_plant_error_in_a_worker_names_the_point(tmp_path):
+    """A dynamics point's trim raises an exception that cannot be rebuilt from its pickle: the
+    point is replaced and its recorded reason names it, the other points are unaffected (the
+    process pool used to break, failing every pending point as BrokenProcessPool)."""
+    text = spec_text("{trim_points = [[2, 1.25]]}")
+    db = build(BuildSpec.parse(text, "s.toml"), tmp_path / "w.h5", workers=2, progress=False, log=quiet)
+    assert db.attrs["dynamics_failures"] == {
+        "level=2, power=1.25": "level=2, power=1.25: MapError: no steady state at level 2, power 1.25"}
+    assert (db.dyn_status != 0).sum() == 1 and db.dyn_status[1, 1] == 1
+
+
+def test_jacobian_failure_is_recorded_with_the_point(tmp_path):
+    db = serial_build(spec_text("{jacobian_levels = [2]}"), tmp_path / "j.h5")
+    reasons = db.attrs["dynamics_failures"]
+    assert list(reasons) == ["level=2, power=0.25", "level=2, power=1.25"]
+    assert reasons["level=2, power=0.25"] == ("level=2, power=0.25: LinearizationError: perturbing h1 "
+                                              "failed in every direction: KeyError: 'health map missing'")
+    assert db.attrs["trim_failures"] == {}
+
+
+@pytest.mark.parametrize("parameters, message", [
+    ("{trim_points = %s}" % (LINES[0] + LINES[1] + LINES[2]),
+     "plant slow_plant:FailingPlant: every trim failed (12 points), e.g. at level=0, power=0: "
+     "MapError: no steady state at level 0, power 0"),
+    ("{trim_points = %s}" % LINES[1],
+     "plant slow_plant:FailingPlant: no trim converged on the power line level=1 (4 points), e.g. at "
+     "level=1, power=0: MapError: no steady state at level 1, power 0"),
+    ("{jacobian_levels = [0, 1, 2]}",
+     "plant slow_plant:FailingPlant: no dynamics point could be linearized (4 points), e.g. at "
+     "level=0, power=0.25: LinearizationError: perturbing h1 failed in every direction: KeyError"),
+])
+def test_a_build_the_plant_makes_fail_is_one_named_line(tmp_path, capsys, parameters, message):
+    code, err = run_cli(capsys, "build", write_spec(tmp_path, parameters), "-o", str(tmp_path / "f.h5"),
+                        "--serial", "-q")
+    assert code == 2
+    assert len(err) == 1 and err[0].startswith(f"pwl build: error: {message}"), err
+
+
+@pytest.mark.parametrize("edit, key", [
+    (("slow_plant:FailingPlant", "slow_plant:FailngPlant"), "[model] plant"),
+    (("slow_plant:FailingPlant", "no_such_module:FailingPlant"), "[model] plant"),
+    (("dt = 0.05", 'dt = "0.05"'), "[build] dt"),
+    (("n = 2", 'n = "two"'), "[tuners] n"),
+    (("n = 2", "n = 2\nhealth_sigma = [0.01, 0.02]"), "[tuners] health_sigma"),
+    (("n = 2", "n = 2\ntargets = [1, 2]"), "[tuners] targets"),
+    (("n = 2", 'n = 2\n[kalman]\nq_x = "big"'), "[kalman] q_x"),
+    (("dt = 0.05", "dt = 0.05\nq_x = 1e-3"), "unknown key(s) ['q_x'] in [build]"),
+    (("level = [0, 1, 2]", 'level = [0, "1", 2]'), "[trim_grid] level"),
+    (("parameters = {}", "parameters = [1, 2]"), "[model] parameters"),
+    (("parameters = {}", "parameters = {trim_points = 3}"), "[model] parameters"),
+])
+def test_bad_specs_are_one_line_naming_file_and_key(tmp_path, capsys, edit, key):
+    text = spec_text().replace(*edit)
+    assert text != spec_text()
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    code, err = run_cli(capsys, "build", str(path), "-o", str(tmp_path / "b.h5"), "--serial", "-q")
+    assert code == 2 and len(err) == 1, err
+    assert err[0].startswith(f"pwl build: error: {path}: ") and key in err[0], err
+    assert not (tmp_path / "b.h5").exists()
+
+
+def test_misspelt_plant_class_suggests_the_name(tmp_path, capsys):
+    path = write_spec(tmp_path)
+    with open(path, "w") as fh:
+        fh.write(spec_text().replace("slow_plant:FailingPlant", "models.turbofan:Turbofn"))
+    code, err = run_cli(capsys, "build", path, "-o", str(tmp_path / "b.h5"))
+    assert code == 2
+    assert err == [f"pwl build: error: {path}: [model] plant: model 'models.turbofan:Turbofn': module "
+                   f"'models.turbofan' has no 'Turbofn' (did you mean 'Turbofan'?)"]
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--health", "hpt_eff=-0.9"], "--health: health parameter hpt_eff = -0.9 is outside the allowed "
+                                   "range -0.1..0.1"),
+    (["--health", "hpt_eff=-0.01", "--health-end", "hpt_eff=0.5"],
+     "--health-end: health parameter hpt_eff = 0.5 is outside the allowed range -0.1..0.1"),
+    (["--health", "hpt_efff=-0.01"], "--health: unknown health parameter 'hpt_efff'; known: fan_eff,"),
+    (["--health", "hpt_eff=nan"], "--health: health parameter hpt_eff = nan is outside"),
+    (["--health", "hpt_eff"], "--health: expected name=value, got 'hpt_eff'"),
+])
+def test_simulate_bad_health_is_one_named_line(tmp_path, capsys, argv, message):
+    out = tmp_path / "f.h5"
+    code, err = run_cli(capsys, "simulate", *argv, "-o", str(out))
+    assert code == 2 and len(err) == 1, err
+    assert err[0].startswith(f"pwl simulate: error: {message}"), err
+    assert not out.exists()
+
+
+# ---- 2. failed builds never block the next one ------------------------------------------------
+def test_failed_build_then_a_changed_spec_clears_the_parts(tmp_path, capsys):
+    out = str(tmp_path / "c.h5")
+    code, err = run_cli(capsys, "build", write_spec(tmp_path, "{trim_points = %s}" % LINES[2]), "-o", out,
+                        "--serial", "-q")
+    assert code == 2 and "no trim converged on the power line level=2" in err[0]
+    assert sorted(os.listdir(out + ".parts")) == ["build-key", "trim_0.npz", "trim_1.npz"]
+    code, err = run_cli(capsys, "build", write_spec(tmp_path), "-o", out, "--serial", "-q")
+    assert code == 0
+    assert err == [f"removed 2 file(s) from {out}.parts/: partial results of a build with another "
+                   f"spec or plant"]
+    assert os.path.exists(out) and not os.path.exists(out + ".parts")
+
+
+def test_failed_build_rerun_reuses_the_parts_and_equals_a_clean_build(tmp_path, capsys, monkeypatch):
+    """The plant fails on a whole power line, then is fixed: the rerun with the same spec trims
+    only that line and gives the database of a clean build."""
+    text, out = spec_text(), str(tmp_path / "r.h5")
+    monkeypatch.setattr(slow_plant, "BROKEN_LEVELS", {2.0})
+    with pytest.raises(BuildError, match="power line level=2 .* MapError: no steady state"):
+        serial_build(text, out)
+    capsys.readouterr()
+    monkeypatch.setattr(slow_plant, "BROKEN_LEVELS", set())
+    db = serial_build(text, out)
+    assert capsys.readouterr().err.splitlines() == [
+        f"resuming: reusing 8 of 12 trim points from {out}.parts/"]
+    clean = serial_build(text, tmp_path / "clean.h5")
+    for k in "xuyz":
+        np.testing.assert_array_equal(db.trim[k], clean.trim[k])
+    for k in "ABCDFGLMN":
+        np.testing.assert_array_equal(db.dynamics[k], clean.dynamics[k])
+    for k in "KPQR":
+        np.testing.assert_array_equal(db.kalman[k], clean.kalman[k])
+    np.testing.assert_array_equal(db.trim_status, clean.trim_status)
+    np.testing.assert_array_equal(db.tuner["V"], clean.tuner["V"])
+
+
+def test_a_parts_folder_not_made_by_a_build_is_left_alone(tmp_path):
+    out = tmp_path / "n.h5"
+    os.makedirs(f"{out}.parts")
+    with open(f"{out}.parts/notes.txt", "w") as fh:
+        fh.write("mine")
+    with pytest.raises(BuildError, match="holds files but no build-key"):
+        serial_build(spec_text(), out)
+    assert os.listdir(f"{out}.parts") == ["notes.txt"]
+
+
+# ---- 3. a killed build leaves no orphan workers -----------------------------------------------
+def _children(pid: int) -> set[int]:
+    """Live (not zombie) processes whose parent is ``pid``, from /proc."""
+    out = set()
+    for d in os.listdir("/proc"):
+        if d.isdigit():
+            stat = _stat(int(d))
+            if stat and stat[1] != "Z" and int(stat[2]) == pid:
+                out.add(int(d))
+    return out
+
+
+def _stat(pid: int):
+    """Fields of /proc/PID/stat after the command name (state, ppid, ...), or None."""
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            text = fh.read()
+    except OSError:
+        return None
+    return [""] + text[text.rindex(")") + 2:].split()
+
+
+def _alive(pid: int) -> bool:
+    stat = _stat(pid)
+    return stat is not None and stat[1] != "Z"
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="needs /proc (Linux)")
+def test_sigkill_of_the_build_leaves_no_orphan_workers(tmp_path):
+    spec_path = tmp_path / "slow.toml"
+    spec_path.write_text(spec_text().replace('"slow_plant:FailingPlant"', '"slow_plant:SlowPlant"')
+                         .replace("parameters = {}", "parameters = {delay = 0.3}"))
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([os.path.dirname(__file__)] + sys.path))
+    proc = subprocess.Popen([sys.executable, "-m", "pwl", "build", str(spec_path), "-o", str(tmp_path / "k.h5"),
+                             "-j", "2", "-q"], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    workers = set()
+    try:
+        deadline = time.time() + 60
+        while time.time() < deadline and len(workers) < 2 and proc.poll() is None:
+            workers = _children(proc.pid)
+            time.sleep(0.05)
+        assert len(workers) >= 2, "the build did not start its workers"
+        time.sleep(0.5)  # the workers are trimming (12 trims of 0.3 s on 2 workers)
+        assert not (tmp_path / "k.h5").exists()
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+        deadline = time.time() + 5
+        while time.time() < deadline and any(_alive(w) for w in workers):
+            time.sleep(0.05)
+        assert not [w for w in workers if _alive(w)]
+    finally:
+        for w in workers:  # a failed test must not leave them behind either
+            if _alive(w):
+                os.kill(w, signal.SIGKILL)
+        if proc.poll() is None:
+            proc.kill()
+
+
+# ---- 5. progress off a terminal ---------------------------------------------------------------
+class FakeClock:
+    def __init__(self, step):
+        self.t, self.step = 0.0, step
+
+    def __call__(self):
+        self.t += self.step
+        return self.t
+
+
+@pytest.mark.parametrize("seconds, least, most", [(0.5, 1, 1), (30.0, 5, 7), (1000.0, 9, 11)])
+def test_progress_off_a_terminal_prints_a_bounded_number_of_lines(capsys, seconds, least, most):
+    """1000 steps taking ``seconds`` in all: at most a line per 10 % and per 5 s, plus the last
+    (30 s: a line every 5 s, at 5, 10, ..., 25 s; 1000 s: a line per 10 %)."""
+    bar = Progress("trims", 1000, clock=FakeClock(seconds / 1000))
+    for i in range(1, 1001):
+        bar.update(i)
+    for i in range(1001, 1100):  # an optimiser may report beyond its budget: nothing more
+        bar.update(i)
+    bar.finish()
+    lines = capsys.readouterr().err.splitlines()
+    assert least <= len(lines) <= most, lines
+    assert lines[-1].startswith("trims      [##############################] 1000/1000 completed in")
+    assert all("\r" not in line for line in lines)
+
+
+def test_fast_phase_prints_its_final_line_only(capsys):
+    """With the real clock: a fast phase of many steps gives its final line only (it used to
+    print one per 10 %)."""
+    bar = Progress("dynamics", 500)
+    for i in range(1, 501):
+        bar.update(i)
+    assert len(capsys.readouterr().err.splitlines()) == 1
+
+
+def test_progress_on_a_terminal_is_a_live_bar():
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    term = Terminal()
+    bar = Progress("trims", 50, stream=term)
+    for i in range(1, 51):
+        bar.update(i)
+    text = term.getvalue()
+    assert text.count("\r") == 50 and text.count("\n") == 1 and text.endswith("\n")
+    assert "50/50 completed in" in text.rsplit("\r", 1)[1]
+
+
+# ---- 4 and 6. a turbofan build: no RuntimeWarning, log channels with their ranges -------------
+TINY_TURBOFAN = """
+[model]
+plant = "models.turbofan:Turbofan"
+[trim_grid]
+alt = [0, 9000]
+Mach = [0, 0.8]
+NfR = [70, 100]
+[dynamics_grid]
+Mach = [0, 0.8]
+NfR = [70, 100]
+[build]
+dynamics_hold = {alt = 6000}
+[tuners]
+n = 7
+targets = ["h", "Fn", "T40"]
+"""
+
+#: what the turbofan database must record: unit and plausible range of every log channel it reads
+TURBOFAN_LOG_CHANNELS = {
+    "Wf": ("kg/s", 0.01, 6.0), "Nf": ("rpm", 420.0, 5460.0), "Nc": ("rpm", 1450.0, 18850.0),
+    "T24": ("K", 150.0, 700.0), "Ps30": ("Pa", 5e3, 1e7), "T30": ("K", 150.0, 1200.0),
+    "T48": ("K", 150.0, 1700.0), "P50": ("Pa", 3e3, 5e5), "P15": ("Pa", 3e3, 5e5),
+    "alt": ("m", -500.0, 15000.0), "Mach": ("-", 0.0, 1.0), "T2": ("K", 170.0, 380.0),
+    "P2": ("Pa", 5e3, 2e5)}
+
+
+@pytest.fixture(scope="module")
+def turbofan_db(tmp_path_factory):
+    """A tiny turbofan build (7 tuners of 10: 120 candidate subsets, some of them undetectable)
+    with every RuntimeWarning an error."""
+    out = tmp_path_factory.mktemp("tf") / "tf.h5"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        build(BuildSpec.parse(TINY_TURBOFAN, "tiny.toml"), out, executor=SerialExecutor(), progress=False,
+              log=quiet)
+    return GainDatabase.open(out)
+
+
+def test_turbofan_build_has_no_runtime_warning(turbofan_db):
+    assert turbofan_db.n("q") == 7 and (turbofan_db.kalman_status == 0).all()
+
+
+def test_turbofan_database_records_the_log_channels(turbofan_db):
+    lc = turbofan_db.log_channels
+    assert list(lc) == list(TURBOFAN_LOG_CHANNELS)
+    for c, (unit, lo, hi) in TURBOFAN_LOG_CHANNELS.items():
+        assert lc[c][0] == unit
+        assert lc[c][1:] == pytest.approx((lo, hi), rel=1e-12), c
+
+
+def test_linear_plant_log_channels_are_unbounded(tmp_path):
+    db = serial_build(spec_text(), tmp_path / "l.h5")
+    inf = float("inf")
+    assert GainDatabase.open(tmp_path / "l.h5").log_channels == db.log_channels == {
+        "u1": ("-", -inf, inf), "y1": ("-", -inf, inf), "y2": ("-", -inf, inf), "y3": ("-", -inf, inf),
+        "level": ("-", -inf, inf), "power": ("-", -inf, inf)}
