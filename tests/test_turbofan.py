@@ -437,7 +437,7 @@ def test_ranges_hold_the_shipped_flights(model):
     from pwl.logs import read_log
 
     channels = list(log_channels(model))
-    assert set(model.ranges) == set(channels)
+    assert set(model.ranges) == set(channels) | set(H_NAMES)   # every log channel and health parameter
     for name in ("flight_new.h5", "flight_degraded.h5"):
         path = os.path.join(os.path.dirname(__file__), "..", "data", name)
         log = read_log(path)
