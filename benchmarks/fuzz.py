@@ -25,11 +25,10 @@ import numpy as np
 def _worker(conn, tmp):
     from pwl import fuzz
     from pwl.bench import demo_paths
-    from pwl.database import GainDatabase
     from pwl.estimator import Estimator
     from pwl.logs import Log, read_log
 
-    db_path, logs = demo_paths()
+    _, logs = demo_paths()
     clean_db = os.path.join(tmp, "clean.h5")
     full = read_log(logs[0])
     log = Log(full.time[:1500], {k: v[:1500] for k, v in full.channels.items()}, full.units,

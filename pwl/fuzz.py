@@ -26,7 +26,7 @@ import h5py
 import numpy as np
 
 from .errors import PwlError
-from .h5io import USERBLOCK, seal
+from .h5io import seal
 from .logs import Log, write_log
 
 DB_KINDS = ("bitflip", "byte", "truncate", "append", "zero-block", "h5-delete", "h5-reshape",
