@@ -255,9 +255,23 @@ class GainDatabase:
         scale = np.array([float(v) for _, _, v in self.schedule])
         if not np.all(np.isfinite(scale) & (scale != 0)):
             raise DatabaseError(f"{where}: /schedule/scale {scale.tolist()} must be finite and non-zero")
-        if self.correction is not None and not all(
-                np.isfinite(v) and v > 0 for v in (self.correction.T_std, self.correction.P_std)):
-            raise DatabaseError(f"{where}: /correction T_std, P_std must be positive numbers")
+        for k in KINDS:
+            names = self.names[k]
+            if any(not isinstance(n, str) or not n.strip() for n in names) or len(set(names)) != len(names):
+                raise DatabaseError(f"{where}: /names/{k} {names} must be distinct, non-empty names")
+        channels = [c for c, _, _ in self.schedule]
+        if self.correction is not None:
+            c = self.correction
+            if not all(np.isfinite(v) and v > 0 for v in (c.T_std, c.P_std)):
+                raise DatabaseError(f"{where}: /correction T_std, P_std must be positive numbers")
+            channels += [c.theta_channel, c.delta_channel]
+            if c.theta_channel == c.delta_channel:
+                raise DatabaseError(f"{where}: /correction theta and delta channels are both {c.theta_channel!r}")
+        for c in channels:
+            if not isinstance(c, str) or not c.strip() or (self.log_channels is not None
+                                                             and c not in self.log_channels):
+                raise DatabaseError(f"{where}: log channel {c!r} of /schedule or /correction is not "
+                                    f"a declared log channel")
         for c, (unit, lo, hi) in (self.log_channels or {}).items():
             if np.isnan(lo) or np.isnan(hi) or lo > hi:
                 raise DatabaseError(f"{where}: /log_channels range of {c!r} is [{lo}, {hi}]")
@@ -353,7 +367,9 @@ class GainDatabase:
             db = cls._open(path, sealed=digest is not None)
         except DatabaseError:
             raise
-        except Exception as e:  # anything HDF5 or h5py raise on a damaged unsealed file
+        except (OSError, ValueError, TypeError, KeyError, IndexError, AttributeError,
+                OverflowError, RuntimeError) as e:  # what HDF5/h5py/numpy raise on damaged content
+            # (not everything: a bug of pwl's own must stay a bug, not read as a damaged file)
             raise CorruptError(f"{path}: damaged file, cannot be read ({type(e).__name__}: "
                                f"{' '.join(str(e).split())})") from None
         db.digest = digest or file_digest(path)

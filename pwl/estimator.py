@@ -17,7 +17,7 @@ from .h5io import atomic_h5, write_strings
 from .logs import Log, LogError, read_header, read_log, read_rows, resample, sample_interval
 from .runtime import (FLAG_DYN_OUTSIDE, FLAG_HEALTH, FLAG_HELD_INPUT, FLAG_IMPLAUSIBLE, FLAG_MISFIT,
                       FLAG_NO_UPDATE, FLAG_NOT_STARTED, FLAG_TRIM_OUTSIDE, MISFIT_SIGMAS, PackedModel,
-                      filter_loop, hat_health, report_flags)
+                      blank_implausible, filter_loop, report, screen)
 from .snapshots import SNAPSHOT_OUTPUTS, SnapshotAccumulator, Snapshots, SteadyConfig
 from .errors import PwlError, UsageError
 from .tables import LAWS, AdaptiveTable, TableError
@@ -190,7 +190,6 @@ class Estimator:
 
     def _set_bias(self, tables: dict) -> None:
         db = self.db
-        ny = db.n("y")
         grids = {id(t.grid): t.grid for t in tables.values()}
         grid = next(iter(grids.values())) if tables else Grid([Axis("none", [0.0, 1.0])])
         for c, t in tables.items():
@@ -279,6 +278,8 @@ class Estimator:
             out["flags"] = np.empty(n, dtype=np.int64)
         flags = out.pop("flags") if "flags" in out else np.empty(n, dtype=np.int64)
         chan_count = np.zeros((2, self._limits.shape[1]), dtype=np.int64)
+        if screen(U, Y, S, TH, DE, self._limits, chan_count, flags):
+            U, Y, S, TH, DE = blank_implausible((U, Y, S, TH, DE), self._limits)
         tg, dg, pm, db = self.db.trim_grid, self.db.dyn_grid, self.pm, self.db
         bg = self._b_grid
         learn = np.array([t.enabled for t in self.bias.values()], dtype=np.bool_)
@@ -290,13 +291,11 @@ class Estimator:
                     self.state, self.t_idx, self.d_idx,
                     self._b_chan, self._b_vals, self._b_counts, bg.bp, bg.off, bg.strides, self._b_pidx,
                     self._b_idx, self._b_share, self._b_law, self._b_ratio, learn,
-                    pm.online, pm.p_tab, self.cov, db.tuner["V_pinv"], pm.z_gains, pm.z_labels,
-                    self._limits, chan_count,
+                    pm.online, pm.p_tab, self.cov, db.tuner["V_pinv"], pm.z_gains, pm.z_labels, self._gate,
                     out["x_hat"], out["q_hat"], out["y_hat"], out["residual"], out["z_hat"],
                     out.get("bias_hat", np.empty((n, 0))), out.get("h_std", np.empty((n, 0))), flags)
+        report(out["q_hat"], db.tuner["V_pinv"], db.tuner["h_ref"], *self._h_range, out["h_hat"], flags)
         self._count_channels(chan_count)
-        hat_health(out["q_hat"], db.tuner["V_pinv"], db.tuner["h_ref"], out["h_hat"])
-        report_flags(out["residual"], out["y_hat"], self._gate, out["h_hat"], *self._h_range, flags)
         t = np.arange(n, dtype=np.float64) * db.dt if time is None else np.asarray(time, dtype=np.float64)
         return Result(t, out, flags, self.names)
 
@@ -311,7 +310,7 @@ class Estimator:
     def _column_limits(self) -> np.ndarray:
         """(2, columns) plausible [lo, hi] of every column of the kernel's U, Y, S, TH, DE from
         the channels' ranges, in the kernel's units (theta, delta: divided by T_std, P_std, and
-        always > 0)."""
+        always > 0); finite (no range: +-the largest float), so NaN and +-Inf fail every range."""
         corr = self.db.correction
         std = [1.0, 1.0, 1.0, corr.T_std if corr else 1.0, corr.P_std if corr else 1.0]
         lim = []
@@ -319,7 +318,8 @@ class Estimator:
             for c in cols:
                 lo, hi = self.ranges.get(c, (-np.inf, np.inf))
                 lim.append((max(lo / s, 5e-324) if k >= 3 else lo, hi / s))
-        return np.ascontiguousarray(np.array(lim, dtype=np.float64).T)
+        big = np.finfo(np.float64).max
+        return np.ascontiguousarray(np.clip(np.array(lim, dtype=np.float64).T, -big, big))
 
     def _misfit_gate(self) -> np.ndarray:
         """(ny,) relative misfit gate of every sensor: MISFIT_SIGMAS sensor standard deviations

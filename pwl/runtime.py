@@ -10,7 +10,7 @@ parameter correction:
     y_hat      = y_trim + C_a xi_minus + D_a du
     xi_plus    = xi_minus + K (y_k - y_hat)           (skipped when a measurement is NaN)
     z_hat      = z_trim + F_a xi_plus + G_a du
-    h_hat      = h_ref + V_pinv q        (after the loop, for all samples at once: hat_health)
+    h_hat      = h_ref + V_pinv q        (after the loop, for all samples at once: report)
 
 The filter keeps the absolute state x_abs = x_trim + dx, which is equivalent to the trim-shift
 adjustment. Inputs, schedule channels or theta/delta that are NaN are held at their last valid
@@ -107,17 +107,6 @@ def _bias_learn(b_chan, b_vals, b_counts, b_wts, b_rows, bm, b_frac, b_law, b_ra
             table_update(b_vals[c], b_counts[c], b_wts, b_rows, bm, res[i], b_law, b_ratio, b_frac)
 
 
-@njit(cache=True, nogil=True, inline="always")
-def _missing(v, col, chan_count):
-    """Count a missing sample of column ``col`` (chan_count[0]; chan_count[1] too when it was a
-    finite value outside its plausible range); its flag bits."""
-    chan_count[0, col] += 1
-    if np.isfinite(v):
-        chan_count[1, col] += 1
-        return FLAG_IMPLAUSIBLE
-    return 0
-
-
 @njit(cache=True, nogil=True, fastmath={"reassoc", "contract"}, _nrt=False)
 def _steps(U, Y, S, TH, DE,
            trim_tab, t_bp, t_off, t_str, t_pidx,
@@ -125,7 +114,7 @@ def _steps(U, Y, S, TH, DE,
            dims, ex, cls, s_scale, s_corr,
            state, t_idx, d_idx,
            b_chan, b_vals, b_counts, b_bp, b_off, b_str, b_pidx, b_idx, b_share, b_law, b_ratio,
-           b_learn, online, p_tab, cov, V_pinv, z_gains, z_labels, lim, chan_count,
+           b_learn, online, p_tab, cov, V_pinv, z_gains, z_labels, gate,
            out_x, out_q, out_yhat, out_res, out_z, out_bias, out_hstd, out_flags, work):
     """The step loop of :func:`filter_loop` (same arguments, plus its workspace ``work``).
 
@@ -167,43 +156,34 @@ def _steps(U, Y, S, TH, DE,
     ode = oth + 1
     ost = ode + 1
     for k in range(n):
-        flags = 0
-        # ---- screen every channel: NaN, Inf or outside its plausible range [lim[0], lim[1]] is
-        # missing: inputs, schedule, theta/delta are held at their last valid values (here), a
-        # sensor gives no update (below); columns of lim and chan_count: U, Y, S, TH, DE
+        flags = out_flags[k]   # FLAG_IMPLAUSIBLE from screen(), or 0
+        # ---- hold NaN/Inf inputs / schedule / theta, delta at their last valid values
         for j in range(nu):
             v = U[k, j]
-            if np.isfinite(v) and lim[0, j] <= v <= lim[1, j]:
-                state[ou + j] = v
+            if not np.isfinite(v):
+                flags |= FLAG_HELD_INPUT
             else:
-                flags |= _missing(v, j, chan_count) | FLAG_HELD_INPUT
+                state[ou + j] = v
         for j in range(ns):
             v = S[k, j]
-            if np.isfinite(v) and lim[0, nu + ny + j] <= v <= lim[1, nu + ny + j]:
-                state[osl + j] = v
+            if not np.isfinite(v):
+                flags |= FLAG_HELD_INPUT
             else:
-                flags |= _missing(v, nu + ny + j, chan_count) | FLAG_HELD_INPUT
-        c = nu + ny + ns
-        v = TH[k]
-        if np.isfinite(v) and lim[0, c] <= v <= lim[1, c]:
-            state[oth] = v
+                state[osl + j] = v
+        if not np.isfinite(TH[k]) or TH[k] <= 0.0:
+            flags |= FLAG_HELD_INPUT
         else:
-            flags |= _missing(v, c, chan_count) | FLAG_HELD_INPUT
-        v = DE[k]
-        if np.isfinite(v) and lim[0, c + 1] <= v <= lim[1, c + 1]:
-            state[ode] = v
+            state[oth] = TH[k]
+        if not np.isfinite(DE[k]) or DE[k] <= 0.0:
+            flags |= FLAG_HELD_INPUT
         else:
-            flags |= _missing(v, c + 1, chan_count) | FLAG_HELD_INPUT
+            state[ode] = DE[k]
         ok = True
         for j in range(ou, ost):
             if state[j] != state[j]:
                 ok = False
         if not ok:  # nothing valid yet to predict from
             flags |= FLAG_NOT_STARTED
-            for i in range(ny):
-                v = Y[k, i]
-                if not (np.isfinite(v) and lim[0, nu + i] <= v <= lim[1, nu + i]):
-                    flags |= _missing(v, nu + i, chan_count)
             out_flags[k] = flags
             for j in range(nx):
                 out_x[k, j] = np.nan
@@ -304,15 +284,16 @@ def _steps(U, Y, S, TH, DE,
             s = yh[i]
             fy = fac[cls[cy + i]]
             yk = Y[k, i]
-            if not (np.isfinite(yk) and lim[0, nu + i] <= yk <= lim[1, nu + i]):
-                flags |= _missing(yk, nu + i, chan_count)   # no update from this sensor
+            if not np.isfinite(yk):          # NaN or +-Inf: no update from this sensor
                 update = False
                 res[i] = 0.0
                 out_res[k, i] = np.nan
             else:
                 res[i] = yk / fy - s
-                out_res[k, i] = yk - s * fy
-
+                r = yk - s * fy
+                out_res[k, i] = r
+                if abs(r) > gate[i] * abs(s * fy):
+                    flags |= FLAG_MISFIT
             out_yhat[k, i] = s * fy
         if not update:
             flags |= FLAG_NO_UPDATE
@@ -376,7 +357,7 @@ def filter_loop(U, Y, S, TH, DE,
                 dims, ex, cls, s_scale, s_corr,
                 state, t_idx, d_idx,
                 b_chan, b_vals, b_counts, b_bp, b_off, b_str, b_pidx, b_idx, b_share, b_law, b_ratio,
-                b_learn, online, p_tab, cov, V_pinv, z_gains, z_labels, lim, chan_count,
+                b_learn, online, p_tab, cov, V_pinv, z_gains, z_labels, gate,
                 out_x, out_q, out_yhat, out_res, out_z, out_bias, out_hstd, out_flags):
     """Run the filter over n samples; state and search hints are updated in place (chunkable).
 
@@ -409,11 +390,10 @@ def filter_loop(U, Y, S, TH, DE,
     tuner block of P(k|k) (V_pinv (nh, nq)), unless it has no columns. Not online: p_tab, cov,
     V_pinv and out_hstd are unused (may be empty).
 
-    Screening: lim (2, nu+ny+ns+2) the plausible [lo, hi] of every column of U, Y, S, TH, DE
-    (kernel units; +-inf for none): a value outside, or NaN/Inf, is missing (an input, schedule,
-    theta or delta value is held, a sensor gives no update; FLAG_IMPLAUSIBLE when it was
-    finite); chan_count (2, nu+ny+ns+2) int64 accumulates missing and implausible samples per
-    column. (FLAG_MISFIT is set after the loop, by :func:`misfit_flags`.)
+    Missing values: NaN or +-Inf (and theta, delta <= 0) inputs, schedule and theta/delta values
+    are held at their last valid value, a missing sensor value skips the update. Values outside
+    their plausible range were turned into NaN before, by :func:`screen`; out_flags holds its
+    flags on entry (FLAG_IMPLAUSIBLE, or 0) and the step's flags are added to them.
 
     Zone gains (z_gains non-empty; :mod:`linearize.zones` database zones): the gain is picked,
     not interpolated: the zone label z_labels[node] of the dynamics node nearest to the operating
@@ -469,41 +449,89 @@ def filter_loop(U, Y, S, TH, DE,
     return _steps(U, Y, S, TH, DE, trim_tab, t_bp, t_off, t_str, t_pidx, dyn_tab, d_bp, d_off,
                   d_str, d_pidx, extrapolate, dims, ex, cls, s_scale, s_corr, state, t_idx, d_idx,
                   b_chan, b_vals, b_counts, b_bp, b_off, b_str, b_pidx, b_idx, b_share, b_law,
-                  b_ratio, b_learn, online, p_tab, cov, V_pinv, z_gains, z_labels, lim,
-                  chan_count, out_x, out_q, out_yhat, out_res, out_z, out_bias, out_hstd, out_flags, work)
+                  b_ratio, b_learn, online, p_tab, cov, V_pinv, z_gains, z_labels, gate,
+                  out_x, out_q, out_yhat, out_res, out_z, out_bias, out_hstd, out_flags, work)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _screen_block(A, k, lim, c0, chan_count):
+    """Screen row k of A (n, m) whose columns are c0.. of lim/chan_count (see :func:`screen`)."""
+    f = 0
+    for j in range(A.shape[1]):
+        v = A[k, j]
+        if not lim[0, c0 + j] <= v <= lim[1, c0 + j]:
+            chan_count[0, c0 + j] += 1
+            if np.isfinite(v):
+                chan_count[1, c0 + j] += 1
+                f = FLAG_IMPLAUSIBLE
+    return f
 
 
 @njit(cache=True, nogil=True)
-def report_flags(residual, y_hat, gate, h_hat, h_lo, h_hi, flags):
-    """Add FLAG_MISFIT where a sensor's |residual| exceeds gate * |y_hat| and FLAG_HEALTH where a
-    health estimate is outside [h_lo, h_hi]: residual, y_hat (n, ny) from :func:`filter_loop`,
-    gate (ny,) relative (inf: never), h_hat (n, nh), h_lo, h_hi (nh,), flags (n,) in place.
-    A separate pass after the step loop (which stays short); the flags only report."""
-    for k in range(residual.shape[0]):
-        for i in range(residual.shape[1]):
-            if abs(residual[k, i]) > gate[i] * abs(y_hat[k, i]):
-                flags[k] |= FLAG_MISFIT
-                break
-        for i in range(h_hat.shape[1]):
-            if h_hat[k, i] < h_lo[i] or h_hat[k, i] > h_hi[i]:
-                flags[k] |= FLAG_HEALTH
-                break
-    return flags
+def screen(U, Y, S, TH, DE, lim, chan_count, flags):
+    """The plausibility pass before :func:`filter_loop`: U (n, nu), Y (n, ny), S (n, ns), TH, DE
+    (n,) as the filter gets them; lim (2, nu+ny+ns+2) the plausible [lo, hi] of every column
+    (finite: +-the largest float for none, so NaN and +-Inf fail). Counts every column's missing
+    values (outside its range, NaN or +-Inf) in chan_count[0] and the implausible ones (finite
+    but outside) in chan_count[1] ((2, nu+ny+ns+2) int64, accumulated); writes flags (n,):
+    FLAG_IMPLAUSIBLE on the samples with an implausible value, else 0. Returns the number of
+    such samples: when there are any, blank them (:func:`blank_implausible`) before the filter.
+    A pass of its own: the step loop stays short (a range test per channel in it cost ~10 %)."""
+    nu, ny, ns = U.shape[1], Y.shape[1], S.shape[1]
+    c = nu + ny + ns
+    bad = 0
+    for k in range(U.shape[0]):
+        f = _screen_block(U, k, lim, 0, chan_count) | _screen_block(Y, k, lim, nu, chan_count) \
+            | _screen_block(S, k, lim, nu + ny, chan_count)
+        for j, v in ((c, TH[k]), (c + 1, DE[k])):
+            if not lim[0, j] <= v <= lim[1, j]:
+                chan_count[0, j] += 1
+                if np.isfinite(v):
+                    chan_count[1, j] += 1
+                    f = FLAG_IMPLAUSIBLE
+        flags[k] = f
+        if f:
+            bad += 1
+    return bad
 
 
-@njit(cache=True, nogil=True)
-def hat_health(q_hat, V_pinv, h_ref, out):
-    """Health estimates h = h_ref + V_pinv q for every sample: out (n, nh) from q_hat (n, nq).
-
-    Done after the step loop, sample by sample in a fixed order (so a one-sample call gives the
-    same bits as a long one): the step loop stays short. NaN tuners give NaN health."""
-    for k in range(q_hat.shape[0]):
-        for i in range(h_ref.shape[0]):
-            s = h_ref[i]
-            for j in range(q_hat.shape[1]):
-                s += V_pinv[i, j] * q_hat[k, j]
-            out[k, i] = s
+def blank_implausible(arrays, lim):
+    """Copies of U, Y, S, TH, DE (``arrays``) with every finite value outside its column's range
+    in lim (see :func:`screen`) replaced by NaN: the filter then treats it as missing."""
+    out, c = [], 0
+    for a in arrays:
+        m = 1 if a.ndim == 1 else a.shape[1]
+        lo, hi = lim[0, c:c + m], lim[1, c:c + m]
+        if a.ndim == 1:
+            lo, hi = lo[0], hi[0]
+        out.append(np.where(np.isfinite(a) & ((a < lo) | (a > hi)), np.nan, a))
+        c += m
     return out
+
+
+@njit(cache=True, nogil=True)
+def report(q_hat, V_pinv, h_ref, h_lo, h_hi, h_out, flags):
+    """The pass after :func:`filter_loop`: health estimates h = h_ref + V_pinv q into h_out (n, nh)
+    from q_hat (n, nq) (sample by sample in a fixed order, so a one-sample call gives the same
+    bits as a long one; NaN tuners give NaN health); FLAG_HEALTH added to flags (n,) where a
+    health estimate is outside [h_lo, h_hi] (nh,) (it only reports)."""
+    nh = h_ref.shape[0]
+    VT = np.ascontiguousarray(V_pinv.T)
+    acc = np.empty(nh)
+    for k in range(q_hat.shape[0]):
+        for i in range(nh):
+            acc[i] = h_ref[i]
+        for j in range(q_hat.shape[1]):   # column by column: the loop over i vectorises
+            c = q_hat[k, j]
+            for i in range(nh):
+                acc[i] += VT[j, i] * c
+        out = False
+        for i in range(nh):
+            h_out[k, i] = acc[i]
+            out |= (acc[i] < h_lo[i]) | (acc[i] > h_hi[i])   # no branch here: it costs ~40 %
+        if out:
+            flags[k] |= FLAG_HEALTH
+    return flags
 
 
 def augment(d: dict, V_pinv: np.ndarray) -> dict:

@@ -216,6 +216,18 @@ def test_non_finite_values_are_named(saved, ds, value):
         GainDatabase.open(saved)
 
 
+@pytest.mark.parametrize("obj, attr, value", [("correction", "theta_channel", ""),
+                                              ("correction", "delta_channel", "Tin"),
+                                              ("correction", "T_std", -1.0)])
+def test_corrupt_correction_attributes_are_named(saved, obj, attr, value):
+    # an empty theta channel used to switch the parameter correction off without a word
+    if GainDatabase.open(saved).correction is None:
+        pytest.skip("this database has no correction")
+    edit(saved, lambda f: f[obj].attrs.__setitem__(attr, value))
+    with pytest.raises(dbm.DatabaseError, match="correction"):
+        GainDatabase.open(saved)
+
+
 def test_unstable_gain_is_named_with_its_node(saved):
     ref = GainDatabase.open(saved)
     # an independent check first: every stored gain is stable (numpy eigenvalues node by node)

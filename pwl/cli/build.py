@@ -17,6 +17,9 @@ def run(args) -> int:
     from linearize.build import SerialExecutor, build
     from linearize.spec import BuildSpec
 
+    from .output import check_output
+
+    check_output(args.output)
     spec = BuildSpec.load(args.spec)
     db = build(spec, args.output, executor=SerialExecutor() if args.serial else None,
                workers=args.workers, progress=not args.quiet, keep_parts=args.keep_parts)

@@ -76,8 +76,11 @@ def run(args) -> int:
     from ..errors import EXIT_FINDINGS, EXIT_INPUT
     from ..estimator import Estimator, run_many
 
+    from .output import check_output
+
     db = GainDatabase.open(args.database)  # fail early, with the named error, on a bad database
     Estimator(db, online=args.online, zones=args.zones)  # and on options it cannot serve
+    check_output(args.outdir, folder=True)   # and on an output folder it cannot write
     logs, names = expand(args.logs, with_names=True)
     if not logs:
         print("pwl run: no logs found", file=sys.stderr)

@@ -75,6 +75,10 @@ def run(args) -> int:
     from models.flight import DT, drift, flight_profile, simulate
     from models.turbofan import PlantError, Turbofan
 
+    from .output import check_output
+
+    check_output(args.output)
+
     from ..logs import Log, write_log
 
     start = _health(args.health, "--health")
