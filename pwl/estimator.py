@@ -7,19 +7,18 @@ HDF5 log in chunks with bounded memory and writes results as it goes.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from .database import GainDatabase
 from .grid import Axis, Grid
-from .h5io import atomic_h5, write_strings
+from .h5io import atomic_h5
 from .logs import Log, LogError, read_header, read_log, read_rows, resample, sample_interval
-from .runtime import (FLAG_DYN_OUTSIDE, FLAG_HEALTH, FLAG_HELD_INPUT, FLAG_IMPLAUSIBLE, FLAG_MISFIT,
-                      FLAG_NO_UPDATE, FLAG_NOT_STARTED, FLAG_TRIM_OUTSIDE, MISFIT_SIGMAS, PackedModel,
+from .runtime import (FLAG_DYN_OUTSIDE, FLAG_NOT_STARTED, FLAG_TRIM_OUTSIDE, MISFIT_SIGMAS, PackedModel,
                       blank_implausible, filter_loop, report, screen)
-from .snapshots import SNAPSHOT_OUTPUTS, SnapshotAccumulator, Snapshots, SteadyConfig
-from .errors import PwlError, UsageError
+from .results import LOG_ATTRS, Result, append_rows, init_result_file
+from .snapshots import SNAPSHOT_OUTPUTS, SnapshotAccumulator, SteadyConfig
+from .errors import PwlError
 from .tables import LAWS, AdaptiveTable, TableError
 
 OUTPUTS = ("x_hat", "q_hat", "h_hat", "y_hat", "residual", "z_hat")
@@ -28,95 +27,6 @@ BIAS_PREFIX = "bias_"   # bias tables are stored as /tables/bias_<channel>
 
 class EnvelopeError(PwlError, ValueError):
     """The operating point left the grid and the database's policy is ``error``."""
-
-
-@dataclass
-class Result:
-    """Estimates for one log: each output (n, k) in physical units, flags (n,) int64.
-
-    Outputs: x_hat, q_hat, h_hat, y_hat (a priori, bias included), residual, z_hat, and
-    ``bias_hat`` (the bias tables' values at the operating point) when the estimator has them,
-    ``h_std`` (standard deviation of every health estimate, from the filter's covariance) when it
-    is an online-covariance estimator."""
-
-    time: np.ndarray
-    outputs: dict[str, np.ndarray]
-    flags: np.ndarray
-    names: dict[str, list[str]]
-    source: str = "<memory>"
-    attrs: dict = field(default_factory=dict)
-    snapshots: Snapshots | None = None
-
-    def __getattr__(self, name):
-        if name in self.__dict__.get("outputs", {}):
-            return self.outputs[name]
-        raise AttributeError(name)
-
-    def channel(self, output: str, name: str) -> np.ndarray:
-        """One column, e.g. ``channel("z_hat", "T40")``."""
-        return self.outputs[output][:, self.names[output].index(name)]
-
-    def counts(self) -> dict:
-        f = self.flags
-        return {"samples": int(f.size),
-                "no_update": int(np.count_nonzero(f & FLAG_NO_UPDATE)),
-                "held_input": int(np.count_nonzero(f & FLAG_HELD_INPUT)),
-                "trim_outside": int(np.count_nonzero(f & FLAG_TRIM_OUTSIDE)),
-                "dyn_outside": int(np.count_nonzero(f & FLAG_DYN_OUTSIDE)),
-                "not_started": int(np.count_nonzero(f & FLAG_NOT_STARTED)),
-                "implausible": int(np.count_nonzero(f & FLAG_IMPLAUSIBLE)),
-                "misfit": int(np.count_nonzero(f & FLAG_MISFIT)),
-                "health_implausible": int(np.count_nonzero(f & FLAG_HEALTH)),
-                "updated": int(np.count_nonzero((f & (FLAG_NO_UPDATE | FLAG_NOT_STARTED)) == 0))}
-
-    def save(self, path) -> None:
-        """HDF5 (atomic) or, for a ``.csv`` path, CSV with ``output.name`` columns."""
-        if os.fspath(path).lower().endswith(".csv"):
-            cols = {"time": self.time, "flags": self.flags}
-            for o in self.names:
-                for j, n in enumerate(self.names[o]):
-                    cols[f"{o}.{n}"] = self.outputs[o][:, j]
-            from .logs import write_csv
-            write_csv(path, Log(self.time, {k: v for k, v in cols.items() if k != "time"}, {}, path=str(path)))
-            return
-        with atomic_h5(path) as f:
-            _init_result_file(f, self.names, self.source, self.counts(), 0, self.attrs,
-                              self.attrs.get("provenance"))
-            _append(f, self.time, self.outputs, self.flags)
-            if self.snapshots is not None:
-                self.snapshots.save(f.create_group("snapshots"))
-
-
-#: log attributes copied into results files (who flew what, when: the fleet's bookkeeping)
-LOG_ATTRS = ("engine", "flight_index", "flight_time")
-
-
-def _init_result_file(f, names, source, counts, n, attrs=None, provenance=None):
-    f.attrs["format"] = "pwl-estimates"
-    f.attrs["format_version"] = 1
-    f.attrs["source"] = str(source)
-    for k, v in (attrs or {}).items():
-        if k in LOG_ATTRS:
-            f.attrs[k] = v
-    for k, v in (provenance or {}).items():
-        f.attrs[k] = v
-    f.create_dataset("time", shape=(n,), maxshape=(None,), dtype="f8", chunks=(8192,))
-    f.create_dataset("flags", shape=(n,), maxshape=(None,), dtype="i8", chunks=(8192,))
-    for o in names:
-        k = len(names[o])
-        f.create_dataset(o, shape=(n, k), maxshape=(None, k), dtype="f8", chunks=(8192, max(k, 1)))
-        write_strings(f.require_group("names"), o, names[o])
-    for k, v in counts.items():
-        f.attrs[k] = v
-
-
-def _append(f, time, outputs, flags):
-    n0 = f["time"].shape[0]
-    n1 = n0 + time.size
-    for name, data in [("time", time), ("flags", flags)] + list(outputs.items()):
-        d = f[name]
-        d.resize(n1, axis=0)
-        d[n0:n1] = data
 
 
 class Estimator:
@@ -494,13 +404,13 @@ class Estimator:
         counts = None
         acc = self._snapshot_accumulator(head.dt)
         with atomic_h5(out_path) as f:
-            _init_result_file(f, self.names, log_path, {}, 0, head.attrs, self.provenance)
+            init_result_file(f, self.names, log_path, {}, 0, head.attrs, self.provenance)
             for a in range(0, n, chunk):
                 part = read_rows(head, a, min(n, a + chunk))
                 arrays = self._split(part)
                 res = self.run_arrays(*arrays, time=part.time)
                 self._check_envelope(res.flags, res.time, log_path)
-                _append(f, res.time, res.outputs, res.flags)
+                append_rows(f, res.time, res.outputs, res.flags)
                 self._accumulate(acc, a, res, arrays)
                 c = res.counts()
                 counts = c if counts is None else {k: counts[k] + c[k] for k in c}
@@ -519,83 +429,3 @@ def load_bias_tables(path) -> dict:
     with h5py.File(path, "r") as f:
         names = [k for k in f.get("tables", {}) if k.startswith(BIAS_PREFIX)]
     return {k[len(BIAS_PREFIX):]: AdaptiveTable.load(path, k) for k in names}
-
-
-# ---- many logs ---------------------------------------------------------------------------------
-_worker_est = None
-
-
-def _init_worker(db_path, online=False, zones=False, resample=False):
-    global _worker_est
-    _worker_est = Estimator(db_path, online=online, zones=zones, resample=resample)
-
-
-def _run_one(log_path, out_path):
-    try:
-        return log_path, out_path, _worker_est.run_file(log_path, out_path), None
-    except Exception as e:  # one bad log must not lose the others: report it, go on
-        return log_path, out_path, None, f"{type(e).__name__}: {e}"
-
-
-def output_path(log_path, outdir, csv: bool = False, name: str | None = None) -> str:
-    """Results file of a log: ``outdir/<name without extension>.estimates.h5`` (``.csv``); ``name``
-    defaults to the log's file name and may hold sub-folders (``ESN001/flight_003.h5``)."""
-    base = os.path.splitext(os.fspath(name or os.path.basename(os.fspath(log_path))))[0]
-    return os.path.join(os.fspath(outdir), base + (".estimates.csv" if csv else ".estimates.h5"))
-
-
-def result_names(log_paths, names=None) -> list[str]:
-    """Names of the results of ``log_paths`` relative to the output folder: ``names`` when given,
-    else the file names; logs of the same file name in different folders keep their folder
-    (``ESN1/flight_001.h5`` and ``ESN2/flight_001.h5``). Two logs that would still collide are an
-    error."""
-    logs = [os.fspath(p) for p in log_paths]
-    out = list(names) if names is not None else [os.path.basename(p) for p in logs]
-    if names is None:
-        seen: dict[str, int] = {}
-        for n in out:
-            seen[n] = seen.get(n, 0) + 1
-        out = [os.path.join(os.path.basename(os.path.dirname(os.path.abspath(p))), n) if seen[n] > 1 else n
-               for p, n in zip(logs, out)]
-    stems = [os.path.splitext(n)[0] for n in out]
-    if len(set(stems)) != len(stems):
-        dup = sorted({s for s in stems if stems.count(s) > 1})
-        raise UsageError(f"logs {dup[:3]} would write the same results file; give them distinct names "
-                         "or folders")
-    return out
-
-
-def run_many(db_path, log_paths, outdir, workers: int | None = None, csv: bool = False,
-             progress=None, online: bool = False, zones: bool = False, names=None,
-             resample: bool = False):
-    """Estimate every log into ``outdir`` (one results file per log), in parallel processes
-    (``online``, ``zones``, ``resample``: the full Kalman filter, the zone gains, logs resampled to
-    the database's dt, as for :class:`Estimator`).
-    ``names``: results names relative to ``outdir`` (see :func:`result_names`; folder trees such as
-    a fleet's ``ESN001/flight_000.h5`` keep their sub-folders).
-
-    Returns a list of (log, output, counts or None, error message or None) in input order; a log
-    that fails is reported and the others still complete. ``progress(done, total, item)`` is
-    called after each log.
-    """
-    from concurrent.futures import ProcessPoolExecutor
-
-    logs = [os.fspath(p) for p in log_paths]
-    outs = [output_path(p, outdir, csv, n) for p, n in zip(logs, result_names(logs, names))]
-    os.makedirs(outdir, exist_ok=True)
-    workers = max(1, min(len(logs), workers or os.cpu_count() or 1))
-    results = []
-    if workers == 1:
-        _init_worker(db_path, online, zones, resample)
-        for i, (lg, out) in enumerate(zip(logs, outs)):
-            results.append(_run_one(lg, out))
-            if progress:
-                progress(i + 1, len(logs), results[-1])
-        return results
-    with ProcessPoolExecutor(workers, initializer=_init_worker, initargs=(os.fspath(db_path), online, zones, resample)) as ex:
-        futs = [ex.submit(_run_one, lg, out) for lg, out in zip(logs, outs)]
-        for i, fut in enumerate(futs):
-            results.append(fut.result())
-            if progress:
-                progress(i + 1, len(logs), results[-1])
-    return results

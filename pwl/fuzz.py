@@ -215,7 +215,7 @@ def _broken_csv(t, ch, units, folder, kind, rng) -> str:
 
 # ---- outcome -----------------------------------------------------------------------------------
 def outcome(run, clean) -> tuple[str, str]:
-    """Classify one mutant: ``run()`` returns a :class:`pwl.estimator.Result` or raises; ``clean``
+    """Classify one mutant: ``run()`` returns a :class:`pwl.results.Result` or raises; ``clean``
     is the clean run's Result. Returns (outcome, detail)."""
     try:
         res = run()

@@ -74,7 +74,8 @@ def expand(paths, with_names: bool = False):
 def run(args) -> int:
     from ..database import GainDatabase
     from ..errors import EXIT_FINDINGS, EXIT_INPUT
-    from ..estimator import Estimator, run_many
+    from ..estimator import Estimator
+    from ..fleet_run import run_many
 
     from .output import check_output
 
