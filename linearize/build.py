@@ -36,7 +36,7 @@ from contextlib import contextmanager
 
 import numpy as np
 
-from pwl.database import COMPUTED, EXTRAPOLATED, FILLED, REPLACED, Correction, GainDatabase
+from pwl.database import COMPUTED, EXTRAPOLATED, FILLED, OUT_NONE, REPLACED, Correction, GainDatabase
 from pwl.errors import PwlError
 from pwl.grid import Axis, Grid
 from pwl.runtime import augment
@@ -504,7 +504,7 @@ def build(spec: BuildSpec, out_path, *, plant=None, executor: Executor | None = 
         dynamics={m: dyn[m].reshape(D + dyn[m].shape[1:]) for m in "ABCDFGLMN"},
         dyn_status=dyn["status"].reshape(D), dyn_donor=dyn["donor"].reshape(D),
         tuner={"V": fd["V"], "V_pinv": np.linalg.pinv(fd["V"]), "h_ref": h0},
-        kalman={k: fd[k].reshape(D + fd[k].shape[1:]) for k in ("K", "P", "Q", "R")},
+        kalman=kalman_arrays(fd, D),
         kalman_status=fd["status"].reshape(D), kalman_donor=fd["donor"].reshape(D), dt=spec.dt,
         schedule=proto.schedule(plant), correction=corr, log_channels=proto.log_channels(plant),
         attrs={"model": spec.plant, "model_name": plant.name,
@@ -577,10 +577,78 @@ def design_filter(pts, names, dg, dyn_status, n_tuners, method, Ph, targets, pro
     donor[ok] = -1
     if errs:
         log(f"kalman: {len(errs)} gains replaced by the nearest good point: {errs}")
+    K_out, out_status = sensor_out_gains([augment(pt["mats"], Vp) for pt in pts], Q, R, dg,
+                                         ok, names["y"], log)
     return {"V": V, "q_names": q_names, "metric": metric, "subset_metric": subset_metric,
             "rms_error": {every[t]: float(np.sqrt(m)) for t, m in zip(targets, mse)},
             "K": K, "P": P, "Q": Q, "R": R, "status": np.where(ok, COMPUTED, REPLACED).astype(np.int8),
-            "donor": donor}
+            "donor": donor, "K_out": K_out, "out_status": out_status}
+
+
+def sensor_out_gains(aug, Q, R, dg, usable, sensors, log=print):
+    """Steady-state gains for every sensor-out set (all sensors but one), so that the runtime
+    keeps updating from the others when one sensor is missing (a dead thermocouple).
+
+    aug: per dynamics point (flat order) the augmented system (A, C of :func:`augment`); Q (n, na,
+    na), R (n, ny, ny) its noise covariances; usable (n,) bool: points whose full gain was
+    computed (the others take their donor's). Returns K_out (ny, n, na, ny) -- K_out[j] the
+    update gain without sensor j, its column j zero -- and out_status (ny, n) int8: COMPUTED,
+    REPLACED (the nearest point's gain without that sensor) or OUT_NONE (no point can do without
+    sensor j: the tuners are not detectable without it; the runtime then skips the update).
+    Cost: ny more Riccati solves per point, ny times the size of /kalman/K in the file."""
+    ny, n = R.shape[-1], len(aug)
+    na = Q.shape[-1]
+    K_out = np.zeros((ny, n, na, ny))
+    status = np.full((ny, n), OUT_NONE, dtype=np.int8)
+    for j in range(ny):
+        keep = np.arange(ny) != j
+        ok = np.zeros(n, bool)
+        for i in np.flatnonzero(usable):
+            try:
+                K_out[j, i][:, keep], _ = steady_state_gain(aug[i]["A"], aug[i]["C"][keep], Q[i],
+                                                            R[i][np.ix_(keep, keep)])
+                ok[i] = True
+            except GainError:
+                pass
+        donor = nearest_good(dg, ok)
+        if (donor < 0).all():
+            log(f"kalman: without sensor {sensors[j]} no point has a detectable gain "
+                "(the runtime skips the update when it is missing)")
+            continue
+        K_out[j] = K_out[j][donor]
+        status[j] = np.where(ok, COMPUTED, REPLACED)
+        if (~ok).any():
+            log(f"kalman: without sensor {sensors[j]}: {int((~ok).sum())} of {n} gains from the "
+                "nearest point")
+    return K_out, status
+
+
+def with_sensor_out_gains(db: GainDatabase, log=print) -> GainDatabase:
+    """A copy of ``db`` with sensor-out gains (:func:`sensor_out_gains`) from its stored matrices
+    and noise covariances: for databases built before they existed (``pwl regain``-free upgrade;
+    every other dataset unchanged)."""
+    import dataclasses
+
+    dg = db.dyn_grid
+    n, na, ny = dg.size, db.na, db.n("y")
+    flat = {m: db.dynamics[m].reshape((n,) + db.dynamics[m].shape[dg.ndim:]) for m in "ABCDFGLMN"}
+    aug = [augment({m: flat[m][i] for m in flat}, db.tuner["V_pinv"]) for i in range(n)]
+    usable = db.kalman_status.reshape(-1) == COMPUTED
+    K_out, st = sensor_out_gains(aug, db.kalman["Q"].reshape(n, na, na), db.kalman["R"].reshape(n, ny, ny),
+                                 dg, usable, db.names["y"], log)
+    kalman = dict(db.kalman, K_out=K_out.reshape((ny,) + dg.shape + (na, ny)),
+                  out_status=st.reshape((ny,) + dg.shape))
+    return dataclasses.replace(db, kalman=kalman)
+
+
+def kalman_arrays(fd: dict, D: tuple) -> dict:
+    """The /kalman datasets of a database from :func:`design_filter`'s flat arrays (points ->
+    dynamics grid shape D)."""
+    out = {k: fd[k].reshape(D + fd[k].shape[1:]) for k in ("K", "P", "Q", "R")}
+    ny = fd["K_out"].shape[0]
+    out["K_out"] = fd["K_out"].reshape((ny,) + D + fd["K_out"].shape[2:])
+    out["out_status"] = fd["out_status"].reshape((ny,) + D)
+    return out
 
 
 @contextmanager
@@ -814,5 +882,5 @@ def retune(db: GainDatabase, *, n_tuners: int, method: str = "subset", targets=(
     return dataclasses.replace(
         db, names={**db.names, "q": fd["q_names"]}, units={**db.units, "q": ["-"] * n_tuners},
         tuner={"V": fd["V"], "V_pinv": np.linalg.pinv(fd["V"]), "h_ref": db.tuner["h_ref"]},
-        kalman={k: fd[k].reshape(D + fd[k].shape[1:]) for k in ("K", "P", "Q", "R")},
+        kalman=kalman_arrays(fd, D),
         kalman_status=fd["status"].reshape(D), kalman_donor=fd["donor"].reshape(D), attrs=attrs)

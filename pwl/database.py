@@ -28,6 +28,7 @@ MATRICES = ("A", "B", "C", "D", "F", "G", "L", "M", "N")
 # status codes
 COMPUTED, FILLED, EXTRAPOLATED = 0, 1, 2   # /trim/status
 REPLACED = 1                               # /dynamics/status, /kalman/status (donor index recorded)
+OUT_NONE = 2                               # /kalman/out_status: no gain without that sensor
 
 
 class DatabaseError(PwlError, ValueError):
@@ -97,7 +98,9 @@ class GainDatabase:
     - ``tuner``: V (nq, nh), V_pinv (nh, nq), h_ref (nh,)
     - ``kalman``: K D + (na, ny) update gain, P D + (na, na) a-priori covariance, and the
       covariances used, Q D + (na, na), R D + (ny, ny) (noise scales with the operating point);
-      ``kalman_status``/``kalman_donor`` as for dynamics
+      ``kalman_status``/``kalman_donor`` as for dynamics; optional (builds since #15) sensor-out
+      gains K_out (ny,) + D + (na, ny), K_out[j] the gain without sensor j (column j zero), and
+      out_status int8 (ny,) + D (COMPUTED, REPLACED by the nearest point's, OUT_NONE)
     - ``log_channels``: every log channel the filter reads (inputs, sensed outputs, schedule and
       theta/delta channels) -> (unit, lo, hi): the plant's unit and plausible range (+-inf when
       unbounded); None for databases built before it was recorded (then units come from
@@ -197,6 +200,8 @@ class GainDatabase:
         out += [("kalman/K", "f", D + (na, ny)), ("kalman/P", "f", D + (na, na)),
                 ("kalman/Q", "f", D + (na, na)), ("kalman/R", "f", D + (ny, ny)),
                 ("kalman/status", "i1", D), ("kalman/donor", "i8", D)]
+        if "K_out" in self.kalman:
+            out += [("kalman/K_out", "f", (ny,) + D + (na, ny)), ("kalman/out_status", "i1", (ny,) + D)]
         if self.correction is not None:
             out += [(f"correction/{k}", "f", (self.n(k), 2)) for k in "xuyz"]
         return out
@@ -277,13 +282,14 @@ class GainDatabase:
                 raise DatabaseError(f"{where}: /log_channels range of {c!r} is [{lo}, {hi}]")
         self.check_gains()
 
-    def gain_radius(self) -> np.ndarray:
+    def gain_radius(self, K=None) -> np.ndarray:
         """Spectral radius of the error dynamics (I - K C_a) A_a of the augmented system at every
-        dynamics node: D-shaped array, < 1 where the stored gain is stable."""
+        dynamics node: D-shaped array, < 1 where the gain is stable. K: D + (na, ny), default the
+        stored /kalman/K."""
         from .runtime import augment   # runtime imports this module
 
         aug = augment(self.dynamics, self.tuner["V_pinv"])
-        K = self.kalman["K"]
+        K = self.kalman["K"] if K is None else K
         closed = (np.eye(self.na) - K @ aug["C"]) @ aug["A"]
         return np.abs(np.linalg.eigvals(closed.reshape((-1,) + closed.shape[-2:]))).max(axis=-1) \
             .reshape(self.dyn_grid.shape)
@@ -291,13 +297,26 @@ class GainDatabase:
     def check_gains(self) -> None:
         """Every stored gain gives strictly stable error dynamics (the builder's own check, redone
         at every open: a gain changed after the build is refused, naming the node)."""
-        rho = self.gain_radius()
-        if not np.all(rho < 1.0):
-            i = np.unravel_index(int(np.argmax(rho)), rho.shape)
-            at = ", ".join(f"{a.name} = {a.values[j]:g}" for a, j in zip(self.dyn_grid.axes, i))
-            raise UnstableGainError(f"{self.path}: /kalman/K gives unstable error dynamics at "
-                                    f"{int(np.sum(rho >= 1))} nodes (worst at {at}: spectral radius "
-                                    f"{rho[i]:.6g})")
+        sets = [("/kalman/K", self.kalman["K"], None)]
+        if "K_out" in self.kalman:
+            st = self.kalman["out_status"]
+            if not np.isin(st, (COMPUTED, REPLACED, OUT_NONE)).all():
+                raise DatabaseError(f"{self.path}: /kalman/out_status holds values other than "
+                                    f"{COMPUTED}, {REPLACED}, {OUT_NONE}")
+            for j, name in enumerate(self.names["y"]):
+                Kj = self.kalman["K_out"][j]
+                if np.any(Kj[..., j] != 0.0):
+                    raise DatabaseError(f"{self.path}: /kalman/K_out[{j}] (without {name}) uses {name}")
+                sets.append((f"/kalman/K_out[{j}] (without {name})", Kj, st[j] != OUT_NONE))
+        for label, K, used in sets:
+            rho = np.nan_to_num(self.gain_radius(K), nan=np.inf)
+            bad = (rho >= 1.0) & (True if used is None else used)
+            if bad.any():
+                i = np.unravel_index(int(np.argmax(np.where(bad, rho, -1.0))), rho.shape)
+                at = ", ".join(f"{a.name} = {a.values[j]:g}" for a, j in zip(self.dyn_grid.axes, i))
+                raise UnstableGainError(f"{self.path}: {label} gives unstable error dynamics at "
+                                        f"{int(np.sum(bad))} nodes (worst at {at}: spectral radius "
+                                        f"{rho[i]:.6g})")
 
     # ---- writing -----------------------------------------------------------------------------
     def save(self, path) -> None:
@@ -445,6 +464,8 @@ class GainDatabase:
         db.dyn_status, db.dyn_donor = need("dynamics/status")[()], need("dynamics/donor")[()]
         db.tuner = {k: need(f"tuner/{k}")[()] for k in ("V", "V_pinv", "h_ref")}
         db.kalman = {k: need(f"kalman/{k}")[()] for k in ("K", "P", "Q", "R")}
+        if "kalman/K_out" in f:
+            db.kalman |= {k: need(f"kalman/{k}")[()] for k in ("K_out", "out_status")}
         db.kalman_status, db.kalman_donor = need("kalman/status")[()], need("kalman/donor")[()]
         db.log_channels = None
         if "log_channels" in f:
@@ -484,6 +505,10 @@ class GainDatabase:
                      f"{int((self.dyn_status != 0).sum())} replaced by nearest")
         lines.append(f"  kalman gains: {int((self.kalman_status == 0).sum())} computed, "
                      f"{int((self.kalman_status != 0).sum())} replaced by nearest")
+        if "K_out" in self.kalman:
+            none = [n for j, n in enumerate(self.names["y"]) if (self.kalman["out_status"][j] == OUT_NONE).all()]
+            lines.append(f"  sensor-out gains: for {self.n('y') - len(none)} of {self.n('y')} sensors"
+                         + (f" (none without {', '.join(none)})" if none else ""))
         lines.append(f"  tuner: {self.attrs.get('tuner_method', '?')}, metric "
                      f"{self.attrs.get('tuner_metric', float('nan')):.4g}")
         if self.correction is not None:

@@ -202,6 +202,7 @@ class Estimator:
                     self._b_chan, self._b_vals, self._b_counts, bg.bp, bg.off, bg.strides, self._b_pidx,
                     self._b_idx, self._b_share, self._b_law, self._b_ratio, learn,
                     pm.online, pm.p_tab, self.cov, db.tuner["V_pinv"], pm.z_gains, pm.z_labels, self._gate,
+                    pm.ko_tab, pm.ko_avail,
                     out["x_hat"], out["q_hat"], out["y_hat"], out["residual"], out["z_hat"],
                     out.get("bias_hat", np.empty((n, 0))), out.get("h_std", np.empty((n, 0))), flags)
         report(out["q_hat"], db.tuner["V_pinv"], db.tuner["h_ref"], *self._h_range, out["h_hat"], flags)

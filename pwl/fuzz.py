@@ -226,7 +226,7 @@ def outcome(run, clean) -> tuple[str, str]:
     if _equal(res, clean):
         return "equal", ""
     a, b = res.counts(), clean.counts()
-    keys = ("no_update", "held_input", "implausible", "misfit", "health_implausible", "not_started",
+    keys = ("no_update", "partial", "held_input", "implausible", "misfit", "health_implausible", "not_started",
             "trim_outside", "dyn_outside")
     if any(a[k] != b[k] for k in keys):
         return "flagged", ", ".join(f"{k} {b[k]} -> {a[k]}" for k in keys if a[k] != b[k])

@@ -59,6 +59,11 @@ class ReferenceFilter:
                 mats.setdefault(k, np.zeros(db.dyn_grid.shape + v.shape))[idx] = v
         for k in ("Q", "R", "P"):
             mats[k] = db.kalman[k]
+        self.sensor_out = "K_out" in db.kalman and zones is None and not online
+        if self.sensor_out:   # the gain without sensor j, where one exists
+            for j in range(db.n("y")):
+                if (db.kalman["out_status"][j] != 2).any():
+                    mats[f"K_out{j}"] = db.kalman["K_out"][j]
         self.mats = {k: rgi(db.dyn_grid, v) for k, v in mats.items()}
         self.tax = [db.names["p"].index(n) for n in db.trim_grid.names]
         self.dax = [db.names["p"].index(n) for n in db.dyn_grid.names]
@@ -75,7 +80,9 @@ class ReferenceFilter:
         return theta ** e[:, 0] * delta ** e[:, 1]
 
     def run(self, U, Y, S, TH, DE):
-        """Same inputs as :meth:`pwl.estimator.Estimator.run_arrays`; no NaN handling."""
+        """Same inputs as :meth:`pwl.estimator.Estimator.run_arrays`; NaN only in Y (a missing
+        sensor: online, the update from the others; steady, one missing with its sensor-out gain;
+        else no update; bias tables learn from complete updates only)."""
         db = self.db
         nx, nq = db.n("x"), db.n("q")
         corr = {n: e for k in "xuyz" for n, e in zip(db.names[k], (
@@ -119,15 +126,24 @@ class ReferenceFilter:
                 yh[i] += w @ vals.reshape(-1)
                 learn.append((i, w, vals, ratio, inside))
             r = Y[k] / fy - yh
+            have = np.isfinite(r)
+            r = np.where(have, r, 0.0)
             for i, w, vals, ratio, inside in learn:
-                if inside:
+                if inside and have.all():
                     c2 = w @ w
                     pbar = (1 + np.sqrt(1 + 4 * ratio / c2)) / 2
                     vals.reshape(-1)[:] += pbar * w / (pbar * c2 + ratio) * r[i]
-            if self.online:
-                C = M["C"]
-                K = np.linalg.solve(C @ P @ C.T + M["R"], C @ P).T
-                P = (np.eye(len(P)) - K @ C) @ P
+            out_j = int(np.flatnonzero(~have)[0]) if (~have).sum() == 1 else -1
+            if not have.any() or (not have.all() and not self.online
+                                  and f"K_out{out_j}" not in self.mats):
+                K = np.zeros((len(xm), len(r)))          # no update
+            elif self.online:
+                C, R = M["C"][have], M["R"][np.ix_(have, have)]
+                K = np.zeros((len(xm), len(r)))
+                K[:, have] = np.linalg.solve(C @ P @ C.T + R, C @ P).T
+                P = (np.eye(len(P)) - K[:, have] @ C) @ P
+            elif not have.all():
+                K = M[f"K_out{out_j}"]
             elif self.zones is not None:
                 node = tuple(int(np.argmin(np.abs(a.values - v))) for a, v in zip(db.dyn_grid.axes, pd))
                 K = self.zones.gains[self.zones.labels[node]]
@@ -141,7 +157,7 @@ class ReferenceFilter:
             out["q_hat"].append(q.copy())
             out["h_hat"].append(db.tuner["h_ref"] + db.tuner["V_pinv"] @ q)
             out["y_hat"].append(yh * fy)
-            out["residual"].append(Y[k] - yh * fy)
+            out["residual"].append(np.where(have, Y[k] - yh * fy, np.nan))
             out["z_hat"].append(z * self.factor("z", th, de))
             if self.online:
                 Vp = db.tuner["V_pinv"]

@@ -11,7 +11,7 @@ import numpy as np
 from .h5io import atomic_h5, write_strings
 from .logs import Log
 from .runtime import (FLAG_DYN_OUTSIDE, FLAG_HEALTH, FLAG_HELD_INPUT, FLAG_IMPLAUSIBLE, FLAG_MISFIT,
-                      FLAG_NO_UPDATE, FLAG_NOT_STARTED, FLAG_TRIM_OUTSIDE)
+                      FLAG_NO_UPDATE, FLAG_NOT_STARTED, FLAG_PARTIAL, FLAG_TRIM_OUTSIDE)
 from .snapshots import Snapshots
 
 
@@ -45,6 +45,7 @@ class Result:
         f = self.flags
         return {"samples": int(f.size),
                 "no_update": int(np.count_nonzero(f & FLAG_NO_UPDATE)),
+                "partial": int(np.count_nonzero(f & FLAG_PARTIAL)),
                 "held_input": int(np.count_nonzero(f & FLAG_HELD_INPUT)),
                 "trim_outside": int(np.count_nonzero(f & FLAG_TRIM_OUTSIDE)),
                 "dyn_outside": int(np.count_nonzero(f & FLAG_DYN_OUTSIDE)),

@@ -27,7 +27,7 @@ import numpy as np
 from numba import njit
 
 from .covariance import correct, propagate_augmented
-from .database import DatabaseError, GainDatabase
+from .database import OUT_NONE, DatabaseError, GainDatabase
 from .errors import UsageError
 from .grid import locate
 from .interp import corner_weights, interp_rows
@@ -47,6 +47,9 @@ FLAG_MISFIT = 64          # a sensed output differed from its prediction by more
 MISFIT_SIGMAS = 12.0
 FLAG_HEALTH = 128         # a health estimate left the plant's plausible health range (e.g. an
                           # efficiency 10 % better than new): the estimates cannot be trusted
+FLAG_PARTIAL = 256        # some sensors were missing: the update used the others (steady gains:
+                          # the stored gain without the one missing sensor; online: the reduced
+                          # update); FLAG_NO_UPDATE is set instead when it could not
 
 # layout of the per-filter state vector (float64): [x_abs (nx), q (nq), u_last (nu), s_last (ns),
 # theta_last, delta_last, started]
@@ -114,7 +117,7 @@ def _steps(U, Y, S, TH, DE,
            dims, ex, cls, s_scale, s_corr,
            state, t_idx, d_idx,
            b_chan, b_vals, b_counts, b_bp, b_off, b_str, b_pidx, b_idx, b_share, b_law, b_ratio,
-           b_learn, online, p_tab, cov, V_pinv, z_gains, z_labels, gate,
+           b_learn, online, p_tab, cov, V_pinv, z_gains, z_labels, gate, ko_tab, ko_avail,
            out_x, out_q, out_yhat, out_res, out_z, out_bias, out_hstd, out_flags, work):
     """The step loop of :func:`filter_loop` (same arguments, plus its workspace ``work``).
 
@@ -123,7 +126,7 @@ def _steps(U, Y, S, TH, DE,
     of the time per step (perf; 418 -> 360 ns on the demo flight). It also makes any
     allocation in the loop a compile error."""
     (tw, dw, t_frac, d_frac, t_wts, t_rows, d_wts, d_rows, p, pt, pd, du, xi, xm, res, yh, zh,
-     fac, b_frac, b_wts, b_rows, pb, bias, P, Aa, Ca, Qa, Ra, PCt, Sw, Lw, Kw, AP) = work
+     fac, b_frac, b_wts, b_rows, pb, bias, P, Aa, Ca, Qa, Ra, PCt, Sw, Lw, Kw, AP, ko_rows, kw) = work
     nx, nu, ny, nz, nq, nh = dims[0], dims[1], dims[2], dims[3], dims[4], dims[5]
     na = nx + nq
     ns = S.shape[1]
@@ -279,13 +282,15 @@ def _steps(U, Y, S, TH, DE,
         _add_product(dw, oD, ny, du, yh)
         for c in range(nb):
             yh[b_chan[c]] += bias[c]
-        update = True
+        n_miss = 0
+        miss = 0
         for i in range(ny):
             s = yh[i]
             fy = fac[cls[cy + i]]
             yk = Y[k, i]
             if not np.isfinite(yk):          # NaN or +-Inf: no update from this sensor
-                update = False
+                n_miss += 1
+                miss = i
                 res[i] = 0.0
                 out_res[k, i] = np.nan
             else:
@@ -295,25 +300,48 @@ def _steps(U, Y, S, TH, DE,
                 if abs(r) > gate[i] * abs(s * fy):
                     flags |= FLAG_MISFIT
             out_yhat[k, i] = s * fy
-        if not update:
+        # a missing sensor: the update goes on from the others (online: any subset, the reduced
+        # update below; steady: one sensor out, with its stored gain), else it is skipped
+        update = n_miss == 0
+        partial = n_miss > 0 and n_miss < ny and (online or (n_miss == 1 and ko_avail[miss] != 0))
+        if partial:
+            flags |= FLAG_PARTIAL
+        elif not update:
             flags |= FLAG_NO_UPDATE
-        if nb > 0:
+        if nb > 0:  # the bias tables learn from complete updates only
             _bias_learn(b_chan, b_vals, b_counts, b_wts, b_rows, bm, b_frac, b_law, b_ratio, b_learn,
                         update and b_out == 0, bias, res, fac, cls, cy, out_bias, k)
+        update = update or partial
         # ---- measurement update
         if online and update:  # the gain from P replaces the interpolated one
+            mo = 0                 # rows of the present sensors only
             for i in range(ny):
-                for j in range(na):
-                    Ca[i, j] = dw[oC + j * ny + i]
+                if np.isfinite(Y[k, i]):
+                    for j in range(na):
+                        Ca[mo, j] = dw[oC + j * ny + i]
+                    mi = 0
+                    for j in range(ny):
+                        if np.isfinite(Y[k, j]):
+                            Ra[mo, mi] = dw[oR + i * ny + j]
+                            mi += 1
+                    mo += 1
+            if correct(P, Ca[:mo], Ra[:mo, :mo], PCt[:, :mo], Sw[:mo, :mo], Lw[:mo, :mo], Kw[:, :mo]):
+                mi = 0
                 for j in range(ny):
-                    Ra[i, j] = dw[oR + i * ny + j]
-            if correct(P, Ca, Ra, PCt, Sw, Lw, Kw):
-                for j in range(ny):
+                    present = np.isfinite(Y[k, j])
                     for i in range(na):
-                        dw[oK + j * na + i] = Kw[i, j]
+                        dw[oK + j * na + i] = Kw[i, mi] if present else 0.0
+                    if present:
+                        mi += 1
             else:  # C P C^T + R not positive definite: prediction only
                 update = False
-                flags |= FLAG_NO_UPDATE
+                flags = (flags & ~FLAG_PARTIAL) | FLAG_NO_UPDATE
+        elif partial:  # steady gains: the stored gain without the missing sensor
+            for c in range(m):
+                ko_rows[c] = d_rows[c] * ny + miss
+            interp_rows(ko_tab, d_wts, ko_rows, m, kw)
+            for i in range(na * ny):
+                dw[oK + i] = kw[i]
         for i in range(na):
             xi[i] = xm[i]
         if update and z_gains.shape[0] > 0:  # the zone gain of the nearest dynamics node
@@ -357,7 +385,7 @@ def filter_loop(U, Y, S, TH, DE,
                 dims, ex, cls, s_scale, s_corr,
                 state, t_idx, d_idx,
                 b_chan, b_vals, b_counts, b_bp, b_off, b_str, b_pidx, b_idx, b_share, b_law, b_ratio,
-                b_learn, online, p_tab, cov, V_pinv, z_gains, z_labels, gate,
+                b_learn, online, p_tab, cov, V_pinv, z_gains, z_labels, gate, ko_tab, ko_avail,
                 out_x, out_q, out_yhat, out_res, out_z, out_bias, out_hstd, out_flags):
     """Run the filter over n samples; state and search hints are updated in place (chunkable).
 
@@ -394,6 +422,13 @@ def filter_loop(U, Y, S, TH, DE,
     are held at their last valid value, a missing sensor value skips the update. Values outside
     their plausible range were turned into NaN before, by :func:`screen`; out_flags holds its
     flags on entry (FLAG_IMPLAUSIBLE, or 0) and the step's flags are added to them.
+
+    Missing sensors (NaN/Inf in Y; FLAG_PARTIAL when the update goes on without them): online,
+    the update uses the rows of the present sensors (any subset); steady gains, one missing sensor
+    j with ko_avail[j] != 0 takes the gain without it, interpolated with the dynamics weights from
+    ko_tab (dyn nodes * ny, ny * na): row node * ny + j, column-major like K (column j zero);
+    else (two or more missing, no sensor-out gains: ko_tab (1, 0), zone gains) no update
+    (FLAG_NO_UPDATE). Bias tables learn from complete updates only.
 
     Zone gains (z_gains non-empty; :mod:`linearize.zones` database zones): the gain is picked,
     not interpolated: the zone label z_labels[node] of the dynamics node nearest to the operating
@@ -444,12 +479,14 @@ def filter_loop(U, Y, S, TH, DE,
     Lw = np.empty((mo, mo))
     Kw = np.empty((no, mo))
     AP = np.empty((ro, no))
+    ko_rows = np.empty(1 << nd, dtype=np.int64)
+    kw = np.empty(ko_tab.shape[1])
     work = (tw, dw, t_frac, d_frac, t_wts, t_rows, d_wts, d_rows, p, pt, pd, du, xi, xm, res, yh, zh,
-            fac, b_frac, b_wts, b_rows, pb, bias, P, Aa, Ca, Qa, Ra, PCt, Sw, Lw, Kw, AP)
+            fac, b_frac, b_wts, b_rows, pb, bias, P, Aa, Ca, Qa, Ra, PCt, Sw, Lw, Kw, AP, ko_rows, kw)
     return _steps(U, Y, S, TH, DE, trim_tab, t_bp, t_off, t_str, t_pidx, dyn_tab, d_bp, d_off,
                   d_str, d_pidx, extrapolate, dims, ex, cls, s_scale, s_corr, state, t_idx, d_idx,
                   b_chan, b_vals, b_counts, b_bp, b_off, b_str, b_pidx, b_idx, b_share, b_law,
-                  b_ratio, b_learn, online, p_tab, cov, V_pinv, z_gains, z_labels, gate,
+                  b_ratio, b_learn, online, p_tab, cov, V_pinv, z_gains, z_labels, gate, ko_tab, ko_avail,
                   out_x, out_q, out_yhat, out_res, out_z, out_bias, out_hstd, out_flags, work)
 
 
@@ -590,6 +627,8 @@ class PackedModel:
     p_tab: np.ndarray | None = None
     z_gains: np.ndarray | None = None
     z_labels: np.ndarray | None = None
+    ko_tab: np.ndarray | None = None
+    ko_avail: np.ndarray | None = None
 
     @classmethod
     def from_database(cls, db: GainDatabase, tune: bool = True, online: bool = False,
@@ -663,11 +702,19 @@ class PackedModel:
         every = np.concatenate([ex[k] for k in "xuyz"] + [ex_s]).astype(np.float64)
         pairs = [(0.0, 0.0)] + sorted({tuple(e) for e in every} - {(0.0, 0.0)})
         classes = np.array([pairs.index(tuple(e)) for e in every], dtype=np.int64)
+        ny = db.n("y")
+        ko_tab, ko_avail = np.zeros((1, 0)), np.zeros(ny, dtype=np.int64)
+        if "K_out" in db.kalman and zones is None and not online:
+            ko = np.moveaxis(db.kalman["K_out"].reshape((ny, dg.size, na, ny)), 0, 1).copy()
+            if not tune:
+                ko[..., nx:, :] = 0.0
+            ko_tab = np.ascontiguousarray(np.swapaxes(ko, -1, -2).reshape(dg.size * ny, ny * na))
+            ko_avail = (db.kalman["out_status"].reshape(ny, -1) != OUT_NONE).any(axis=1).astype(np.int64)
         return cls(trim_tab, dyn_tab, t_pidx, d_pidx, dims, np.array(pairs, dtype=np.float64), classes,
                    np.array([float(s) for _, _, s in db.schedule]), s_corr, chans,
                    db.correction.theta_channel if db.correction else None,
                    db.correction.delta_channel if db.correction else None, online, p_tab,
-                   z_gains, z_labels)
+                   z_gains, z_labels, ko_tab, ko_avail)
 
     def state_size(self) -> int:
         nx, nu, ny, nz, nq, nh = self.dims
