@@ -151,3 +151,39 @@ def bench_run(db_path=None, log_path=None, n_ref: int = 2000) -> dict:
             "online_covariance_steps_per_s": n / t_onl,
             "reference_steps_per_s": m / t_ref, "ratio": (n / t) / (m / t_ref),
             "max_rel_diff_vs_reference": diff}
+
+
+def bench_stream(db_path=None, log_path=None, n: int = 20000) -> dict:
+    """Per-sample cost of :class:`pwl.streaming.Stream` (one ``step`` call per sample from Python)
+    against a batch run of the same ``n`` samples of the demo flight, in the same run; and their
+    largest difference (the numbers must be equal)."""
+    from .estimator import Estimator
+    from .logs import read_log
+    from .streaming import Stream
+
+    d_db, d_logs = demo_paths()
+    est = Estimator(db_path or d_db)
+    log = read_log(log_path or d_logs[-1])
+    stream = Stream(est)
+    rows = np.ascontiguousarray(np.column_stack([log.channels[c] for c in stream.channels])[:n])
+    n = rows.shape[0]
+    z = np.empty((n, len(stream.z_hat)))
+
+    def go_stream():
+        est.reset()
+        for k in range(n):
+            stream.step(rows[k])
+            z[k] = stream.z_hat
+    go_stream()                                    # compile / load from cache
+    t_stream = _best_of(go_stream, repeat=3)
+    U, Y, S, TH, DE = est._split(log, slice(0, n))
+    est.reset()
+    batch = est.run_arrays(U, Y, S, TH, DE)
+
+    def go_batch():
+        est.reset()
+        est.run_arrays(U, Y, S, TH, DE)
+    t_batch = _best_of(go_batch, repeat=5)
+    return {"samples": n, "stream_us_per_step": t_stream / n * 1e6,
+            "batch_us_per_step": t_batch / n * 1e6, "ratio": t_stream / t_batch,
+            "max_abs_diff_z": float(np.nanmax(np.abs(z - batch.z_hat)))}

@@ -145,11 +145,15 @@ class Estimator:
     def reset(self, q0=None) -> None:
         """Forget the filter state: the next valid sample starts at trim with tuners q0 (default 0)."""
         nx, nu, ny, nz, nq, nh = self.pm.dims
-        self.state = np.full(self.pm.state_size(), np.nan)
+        if getattr(self, "state", None) is None:   # arrays kept: a Stream holds them
+            self.state = np.empty(self.pm.state_size())
+            self.t_idx = np.zeros(len(self.pm.t_pidx), dtype=np.int64)
+            self.d_idx = np.zeros(len(self.pm.d_pidx), dtype=np.int64)
+        self.state[:] = np.nan
         self.state[nx:nx + nq] = 0.0 if q0 is None else np.asarray(q0, dtype=np.float64)
         self.state[-1] = 0.0
-        self.t_idx = np.zeros(len(self.pm.t_pidx), dtype=np.int64)
-        self.d_idx = np.zeros(len(self.pm.d_pidx), dtype=np.int64)
+        self.t_idx[:] = 0
+        self.d_idx[:] = 0
         self._b_idx[:] = 0
         self.missing = dict.fromkeys(self.input_channels, 0)
         self.implausible = dict.fromkeys(self.input_channels, 0)
@@ -190,25 +194,28 @@ class Estimator:
         chan_count = np.zeros((2, self._limits.shape[1]), dtype=np.int64)
         if screen(U, Y, S, TH, DE, self._limits, chan_count, flags):
             U, Y, S, TH, DE = blank_implausible((U, Y, S, TH, DE), self._limits)
-        tg, dg, pm, db = self.db.trim_grid, self.db.dyn_grid, self.pm, self.db
-        bg = self._b_grid
-        learn = np.array([t.enabled for t in self.bias.values()], dtype=np.bool_)
-        filter_loop(U, Y, S, TH, DE,
-                    pm.trim_tab, tg.bp, tg.off, tg.strides, pm.t_pidx,
-                    pm.dyn_tab, dg.bp, dg.off, dg.strides, pm.d_pidx, tg.extrapolate,
-                    pm.dims, pm.ex, pm.cls,
-                    pm.s_scale, pm.s_corr,
-                    self.state, self.t_idx, self.d_idx,
-                    self._b_chan, self._b_vals, self._b_counts, bg.bp, bg.off, bg.strides, self._b_pidx,
-                    self._b_idx, self._b_share, self._b_law, self._b_ratio, learn,
-                    pm.online, pm.p_tab, self.cov, db.tuner["V_pinv"], pm.z_gains, pm.z_labels, self._gate,
-                    pm.ko_tab, pm.ko_avail,
+        db = self.db
+        filter_loop(U, Y, S, TH, DE, *self._model_args(),
                     out["x_hat"], out["q_hat"], out["y_hat"], out["residual"], out["z_hat"],
                     out.get("bias_hat", np.empty((n, 0))), out.get("h_std", np.empty((n, 0))), flags)
         report(out["q_hat"], db.tuner["V_pinv"], db.tuner["h_ref"], *self._h_range, out["h_hat"], flags)
         self._count_channels(chan_count)
         t = np.arange(n, dtype=np.float64) * db.dt if time is None else np.asarray(time, dtype=np.float64)
         return Result(t, out, flags, self.names)
+
+    def _model_args(self) -> tuple:
+        """The arguments of :func:`pwl.runtime.filter_loop` between its inputs (U, Y, S, TH, DE)
+        and its outputs: the packed model, the filter state (updated in place), the bias tables."""
+        tg, dg, pm, db, bg = self.db.trim_grid, self.db.dyn_grid, self.pm, self.db, self._b_grid
+        learn = np.array([t.enabled for t in self.bias.values()], dtype=np.bool_)
+        return (pm.trim_tab, tg.bp, tg.off, tg.strides, pm.t_pidx,
+                pm.dyn_tab, dg.bp, dg.off, dg.strides, pm.d_pidx, tg.extrapolate,
+                pm.dims, pm.ex, pm.cls, pm.s_scale, pm.s_corr,
+                self.state, self.t_idx, self.d_idx,
+                self._b_chan, self._b_vals, self._b_counts, bg.bp, bg.off, bg.strides, self._b_pidx,
+                self._b_idx, self._b_share, self._b_law, self._b_ratio, learn,
+                pm.online, pm.p_tab, self.cov, db.tuner["V_pinv"], pm.z_gains, pm.z_labels, self._gate,
+                pm.ko_tab, pm.ko_avail)
 
     # ---- what reaches the kernel: plausible values only ----------------------------------------
     def _columns(self) -> list[list[str]]:
@@ -369,12 +376,16 @@ class Estimator:
         acc.add(start, res.time, raw, p, {o: res.outputs[o] for o in SNAPSHOT_OUTPUTS}, outside)
 
     def step(self, sample: dict) -> dict:
-        """One sample (channel name -> value) -> estimates of this step (name -> value) and flags."""
-        log = Log(np.zeros(1), {k: np.array([float(v)]) for k, v in sample.items()}, {}, path="<sample>")
-        res = self.run_arrays(*self._split(log))
-        self._check_envelope(res.flags, res.time, "<sample>")
-        out = {o: dict(zip(self.names[o], res.outputs[o][0])) for o in self.names}
-        out["flags"] = int(res.flags[0])
+        """One sample (channel name -> value, database units) -> estimates of this step (name ->
+        value) and flags. Convenient, not fast: for on-line use at batch speed use a
+        :class:`pwl.streaming.Stream` (made here once and shared)."""
+        if getattr(self, "_stream", None) is None:
+            from .streaming import Stream
+            self._stream = Stream(self)
+        s = self._stream
+        flags = s.step(s.row(sample))
+        out = {o: dict(zip(self.names[o], s.outputs[o][0])) for o in self.names}
+        out["flags"] = flags
         return out
 
     def _check_envelope(self, flags, time, where):

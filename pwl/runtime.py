@@ -435,10 +435,21 @@ def filter_loop(U, Y, S, TH, DE,
     point (per axis the closer breakpoint) selects the centroid gain z_gains[label * na * ny:]
     (column-major, na x ny); dyn_tab blocks then hold no K.
     """
-    # the workspace of the step loop, allocated once per call
+    work = workspace(S.shape[1], trim_tab, dyn_tab, t_pidx, d_pidx, dims, ex, b_vals, b_pidx, online,
+                     cov, ko_tab)
+    return _steps(U, Y, S, TH, DE, trim_tab, t_bp, t_off, t_str, t_pidx, dyn_tab, d_bp, d_off,
+                  d_str, d_pidx, extrapolate, dims, ex, cls, s_scale, s_corr, state, t_idx, d_idx,
+                  b_chan, b_vals, b_counts, b_bp, b_off, b_str, b_pidx, b_idx, b_share, b_law,
+                  b_ratio, b_learn, online, p_tab, cov, V_pinv, z_gains, z_labels, gate, ko_tab, ko_avail,
+                  out_x, out_q, out_yhat, out_res, out_z, out_bias, out_hstd, out_flags, work)
+
+@njit(cache=True, nogil=True)
+def workspace(ns, trim_tab, dyn_tab, t_pidx, d_pidx, dims, ex, b_vals, b_pidx, online, cov, ko_tab):
+    """The work arrays of :func:`_steps` (its last argument), for ns schedule channels and the
+    packed model's sizes; cov the online covariance (P is a view of it). Allocated once per
+    :func:`filter_loop` call, or once per :class:`pwl.streaming.Stream`."""
     nx, nu, ny, nz, nq = dims[0], dims[1], dims[2], dims[3], dims[4]
     na = nx + nq
-    ns = S.shape[1]
     nt = t_pidx.shape[0]
     nd = d_pidx.shape[0]
     nb = b_vals.shape[0]
@@ -483,11 +494,8 @@ def filter_loop(U, Y, S, TH, DE,
     kw = np.empty(ko_tab.shape[1])
     work = (tw, dw, t_frac, d_frac, t_wts, t_rows, d_wts, d_rows, p, pt, pd, du, xi, xm, res, yh, zh,
             fac, b_frac, b_wts, b_rows, pb, bias, P, Aa, Ca, Qa, Ra, PCt, Sw, Lw, Kw, AP, ko_rows, kw)
-    return _steps(U, Y, S, TH, DE, trim_tab, t_bp, t_off, t_str, t_pidx, dyn_tab, d_bp, d_off,
-                  d_str, d_pidx, extrapolate, dims, ex, cls, s_scale, s_corr, state, t_idx, d_idx,
-                  b_chan, b_vals, b_counts, b_bp, b_off, b_str, b_pidx, b_idx, b_share, b_law,
-                  b_ratio, b_learn, online, p_tab, cov, V_pinv, z_gains, z_labels, gate, ko_tab, ko_avail,
-                  out_x, out_q, out_yhat, out_res, out_z, out_bias, out_hstd, out_flags, work)
+    return work
+
 
 
 @njit(cache=True, nogil=True, inline="always")

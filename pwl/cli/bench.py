@@ -3,20 +3,23 @@ import importlib
 
 from .output import print_result
 
-HELP = "benchmarks (interp: interpolation kernel vs RegularGridInterpolator; run: the runtime; table: adaptive tables)"
+HELP = ("benchmarks (interp: interpolation kernel vs RegularGridInterpolator; run: the runtime; "
+        "stream: one sample per call vs batch; table: adaptive tables)")
 
 #: target -> "module:function" returning a dict of figures
 TARGETS = {
     "interp": "pwl.bench:bench_interp",
     "run": "pwl.bench:bench_run",
     "table": "pwl.bench_tables:bench_tables",
+    "stream": "pwl.bench:bench_stream",
 }
 
 
 def add_arguments(p):
     p.add_argument("target", choices=sorted(TARGETS),
                    help="interp: interpolation kernel vs scipy's RegularGridInterpolator; run: the runtime "
-                        "on the demo flight vs a numpy reference; table: 2-D adaptive table updates vs numpy")
+                        "on the demo flight vs a numpy reference; stream: pwl.streaming.Stream.step per sample vs a batch "
+                        "run of the same samples; table: 2-D adaptive table updates vs numpy")
     p.add_argument("--json", action="store_true", help="print one JSON object (default: aligned lines)")
 
 

@@ -1,0 +1,92 @@
+"""pwl.streaming.Stream: one sample per call gives exactly the batch run's numbers (the same
+kernel), in every mode, with missing and implausible samples."""
+import numpy as np
+import pytest
+
+from conftest import make_database
+from linearize.build import with_sensor_out_gains
+from pwl.estimator import EnvelopeError, Estimator
+from pwl.runtime import FLAG_DYN_OUTSIDE, FLAG_TRIM_OUTSIDE
+from pwl.streaming import Stream
+from test_online import online_db
+from test_runtime import inputs, names_db
+
+
+def rows_of(stream, est, U, Y, S, TH, DE):
+    """The stream's sample rows from the kernel's arrays (theta/delta back to raw channels)."""
+    db, pm = est.db, est.pm
+    cols = dict(zip(db.names["u"], U.T)) | dict(zip(db.names["y"], Y.T)) | dict(zip(pm.schedule_channels, S.T))
+    if pm.theta_channel:
+        cols[pm.theta_channel] = TH * db.correction.T_std
+        cols[pm.delta_channel] = DE * db.correction.P_std
+    rows = np.column_stack([cols[c] for c in stream.channels])
+    if pm.theta_channel:   # what the batch gets from such a log (T / T_std, not TH, to the bit)
+        TH[:] = rows[:, stream.channels.index(pm.theta_channel)] / db.correction.T_std
+        DE[:] = rows[:, stream.channels.index(pm.delta_channel)] / db.correction.P_std
+    return rows
+
+
+def run_stream(stream, rows):
+    out = {o: np.empty((len(rows), a.size)) for o, a in stream.outputs.items()}
+    flags = np.empty(len(rows), dtype=np.int64)
+    for k, row in enumerate(rows):
+        flags[k] = stream.step(row)
+        for o in out:
+            out[o][k] = stream.outputs[o][0]
+    return out, flags
+
+
+@pytest.mark.parametrize("mode", ["steady", "online", "sensor-out", "untuned"])
+def test_stream_equals_batch_bit_for_bit(mode):
+    db = {"online": online_db, "sensor-out": lambda: with_sensor_out_gains(names_db(), log=lambda *a: None)}.get(
+        mode, names_db)()
+    est = Estimator(db, online=mode == "online", tune=mode != "untuned")
+    U, Y, S, TH, DE = inputs(db, n=120)
+    Y[10:20, 0] = np.nan          # a missing sensor
+    U[30:35, 0] = np.inf          # a held input
+    stream = Stream(est)
+    rows = rows_of(stream, est, U, Y, S, TH, DE)
+    est.reset()
+    out, flags = run_stream(stream, rows)
+    est.reset()
+    batch = est.run_arrays(U, Y, S, TH, DE)
+    np.testing.assert_array_equal(flags, batch.flags)
+    for o in batch.outputs:
+        np.testing.assert_array_equal(out[o], batch.outputs[o], err_msg=o)
+    assert stream.missing()[est.db.names["y"][0]] == 10
+
+
+def test_stream_with_a_learning_bias_table_equals_batch():
+    db = names_db()
+    est = Estimator(db)
+    est.new_bias_tables([db.names["y"][2]], ratio=10.0)
+    U, Y, S, TH, DE = inputs(db, n=80)
+    stream = Stream(est)
+    rows = rows_of(stream, est, U, Y, S, TH, DE)
+    est.reset()
+    before = est.bias[db.names["y"][2]].values.copy()
+    out, _ = run_stream(stream, rows)
+    learned = est.bias[db.names["y"][2]].values.copy()
+    assert np.abs(learned - before).max() > 0
+    est.bias[db.names["y"][2]].values[...] = before       # the same start for the batch run
+    est.reset()
+    batch = est.run_arrays(U, Y, S, TH, DE)
+    np.testing.assert_array_equal(out["bias_hat"], batch.outputs["bias_hat"])
+    np.testing.assert_array_equal(est.bias[db.names["y"][2]].values, learned)
+
+
+def test_stream_rows_and_policy_errors():
+    db = make_database(policy="error")
+    db.schedule = [("p0", False, 1.0), ("y1", True, 2.0)]
+    est = Estimator(db)
+    stream = Stream(est)
+    U, Y, S, TH, DE = inputs(db, n=5)
+    rows = rows_of(stream, est, U, Y, S, TH, DE)
+    assert not stream.step(rows[0]) & (FLAG_TRIM_OUTSIDE | FLAG_DYN_OUTSIDE)
+    rows[1, stream.channels.index("p0")] = 50.0          # the grid spans 0..10
+    with pytest.raises(EnvelopeError, match="outside the database grid"):
+        stream.step(rows[1])
+    r = stream.row({stream.channels[0]: 1.5})
+    assert r[0] == 1.5 and np.isnan(r[1:]).all()
+    with pytest.raises(Exception, match="unknown channels"):
+        stream.row({"nope": 1.0})
