@@ -175,6 +175,44 @@ class GainDatabase:
         ax = {a.name: a for a in self.dyn_grid.axes + self.trim_grid.axes}
         return np.array([ax[p].hi - ax[p].lo if p in ax else 1.0 for p in self.names["p"]])
 
+    def statespace(self, p):
+        """The piecewise-linear model at operating point ``p`` as a discrete python-control
+        ``StateSpace`` (dt = the database's dt, seconds; needs the ``control`` package):
+
+            x[k+1] = A x[k] + B u[k] + L h[k]        inputs  [u; h]  (nu + nh)
+            [y; z][k] = [C; F] x[k] + [D M; G N] [u; h][k]           (ny + nz outputs)
+
+        deviations from the trim at p, in corrected units, the matrices interpolated on the
+        dynamics grid exactly as the runtime does. ``p``: scheduling variables in
+        ``names["p"]`` order, a sequence or a dict name -> value (variables the dynamics grid
+        does not have are ignored: its matrices are held there; attrs["dynamics_hold"]).
+        Signal names follow the database's names."""
+        import control
+
+        from .interp import interpolate
+
+        names = self.names["p"]
+        if isinstance(p, dict):
+            unknown = set(p) - set(names)
+            if unknown:
+                raise DatabaseError(f"{self.path}: unknown scheduling variables {sorted(unknown)} "
+                                    f"(the database has {names})")
+            missing = [a.name for a in self.dyn_grid.axes if a.name not in p]
+            if missing:
+                raise DatabaseError(f"{self.path}: the operating point needs {missing}")
+            pd = [float(p[a.name]) for a in self.dyn_grid.axes]
+        else:
+            p = np.asarray(p, dtype=np.float64).reshape(-1)
+            if p.size != len(names):
+                raise DatabaseError(f"{self.path}: the operating point has {p.size} values for "
+                                    f"{len(names)} scheduling variables {names}")
+            pd = [p[names.index(a.name)] for a in self.dyn_grid.axes]
+        m = {k: interpolate(self.dyn_grid, self.dynamics[k], np.array(pd))[0] for k in MATRICES}
+        return control.ss(m["A"], np.hstack([m["B"], m["L"]]), np.vstack([m["C"], m["F"]]),
+                          np.block([[m["D"], m["M"]], [m["G"], m["N"]]]), self.dt,
+                          states=list(self.names["x"]), inputs=self.names["u"] + self.names["h"],
+                          outputs=self.names["y"] + self.names["z"])
+
     def operating_point(self, S, theta, delta) -> np.ndarray:
         """Scheduling variables p (n, np) from the raw schedule channels S (n, np) and theta,
         delta (n,) (the inlet ratios T/T_std, P/P_std), as the runtime computes them."""

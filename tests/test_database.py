@@ -250,3 +250,32 @@ def test_files_honour_the_umask(tmp_path):
     finally:
         os.umask(old)
     assert (os.stat(tmp_path / "a.h5").st_mode & 0o777) == 0o640
+
+
+def test_statespace_at_a_node_and_between_nodes():
+    """python-control StateSpace of the model at an operating point: the stored matrices at a
+    node, scipy's RegularGridInterpolator between nodes (independent of pwl's kernel)."""
+    control = pytest.importorskip("control")
+    from scipy.interpolate import RegularGridInterpolator
+
+    db = make_database()
+    dg = db.dyn_grid
+    idx = (1, 2)
+    node = {a.name: a.values[i] for a, i in zip(dg.axes, idx)}
+    ss = db.statespace(node)
+    assert isinstance(ss, control.StateSpace) and ss.dt == db.dt
+    d = {k: db.dynamics[k][idx] for k in dbm.MATRICES}
+    np.testing.assert_array_equal(ss.A, d["A"])
+    np.testing.assert_array_equal(ss.B, np.hstack([d["B"], d["L"]]))
+    np.testing.assert_array_equal(ss.C, np.vstack([d["C"], d["F"]]))
+    np.testing.assert_array_equal(ss.D, np.block([[d["D"], d["M"]], [d["G"], d["N"]]]))
+    assert ss.input_labels == db.names["u"] + db.names["h"]
+    assert ss.output_labels == db.names["y"] + db.names["z"]
+    p = [0.37 * dg.axes[0].hi, 0.61 * (dg.axes[1].lo + dg.axes[1].hi)]
+    mid = db.statespace(p)
+    rgi = RegularGridInterpolator([a.values for a in dg.axes], db.dynamics["A"])
+    np.testing.assert_allclose(mid.A, rgi(p)[0], rtol=1e-12, atol=1e-14)
+    with pytest.raises(dbm.DatabaseError, match="unknown scheduling variables"):
+        db.statespace({"p0": 1.0, "bogus": 2.0})
+    with pytest.raises(dbm.DatabaseError, match="2 scheduling variables"):
+        db.statespace([1.0])
