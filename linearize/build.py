@@ -617,9 +617,15 @@ def sensor_out_gains(aug, Q, R, dg, usable, sensors, log=print):
             continue
         K_out[j] = K_out[j][donor]
         status[j] = np.where(ok, COMPUTED, REPLACED)
+        for i in np.flatnonzero(~ok):   # a donor's gain must stabilize this point too
+            closed = (np.eye(na) - K_out[j, i] @ aug[i]["C"]) @ aug[i]["A"]
+            if not np.abs(np.linalg.eigvals(closed)).max() < 1.0:
+                K_out[j, i] = 0.0
+                status[j, i] = OUT_NONE
         if (~ok).any():
-            log(f"kalman: without sensor {sensors[j]}: {int((~ok).sum())} of {n} gains from the "
-                "nearest point")
+            none = int((status[j] == OUT_NONE).sum())
+            log(f"kalman: without sensor {sensors[j]}: {int((~ok).sum()) - none} of {n} gains from "
+                f"the nearest point, {none} points without (no update there when it is missing)")
     return K_out, status
 
 

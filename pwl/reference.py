@@ -134,8 +134,12 @@ class ReferenceFilter:
                     pbar = (1 + np.sqrt(1 + 4 * ratio / c2)) / 2
                     vals.reshape(-1)[:] += pbar * w / (pbar * c2 + ratio) * r[i]
             out_j = int(np.flatnonzero(~have)[0]) if (~have).sum() == 1 else -1
-            if not have.any() or (not have.all() and not self.online
-                                  and f"K_out{out_j}" not in self.mats):
+            if out_j >= 0 and f"K_out{out_j}" in self.mats:   # every node around pd has that gain
+                w = node_weights([a.values for a in db.dyn_grid.axes], pd)
+                out_ok = bool(np.all(db.kalman["out_status"][out_j].reshape(-1)[w != 0] != 2))
+            else:
+                out_ok = False
+            if not have.any() or (not have.all() and not self.online and not out_ok):
                 K = np.zeros((len(xm), len(r)))          # no update
             elif self.online:
                 C, R = M["C"][have], M["R"][np.ix_(have, have)]

@@ -303,7 +303,11 @@ def _steps(U, Y, S, TH, DE,
         # a missing sensor: the update goes on from the others (online: any subset, the reduced
         # update below; steady: one sensor out, with its stored gain), else it is skipped
         update = n_miss == 0
-        partial = n_miss > 0 and n_miss < ny and (online or (n_miss == 1 and ko_avail[miss] != 0))
+        partial = n_miss > 0 and n_miss < ny and (online or (n_miss == 1 and ko_tab.shape[1] > 0))
+        if partial and not online:   # every corner around p has a gain without that sensor
+            for c in range(m):
+                if d_wts[c] != 0.0 and ko_avail[d_rows[c] * ny + miss] == 0:
+                    partial = False
         if partial:
             flags |= FLAG_PARTIAL
         elif not update:
@@ -425,8 +429,9 @@ def filter_loop(U, Y, S, TH, DE,
 
     Missing sensors (NaN/Inf in Y; FLAG_PARTIAL when the update goes on without them): online,
     the update uses the rows of the present sensors (any subset); steady gains, one missing sensor
-    j with ko_avail[j] != 0 takes the gain without it, interpolated with the dynamics weights from
-    ko_tab (dyn nodes * ny, ny * na): row node * ny + j, column-major like K (column j zero);
+    j takes the gain without it, interpolated with the dynamics weights from ko_tab (dyn nodes *
+    ny, ny * na): row node * ny + j, column-major like K (column j zero), when every corner node
+    of non-zero weight has one (ko_avail (dyn nodes * ny,) int64, same rows, non-zero);
     else (two or more missing, no sensor-out gains: ko_tab (1, 0), zone gains) no update
     (FLAG_NO_UPDATE). Bias tables learn from complete updates only.
 
@@ -717,7 +722,8 @@ class PackedModel:
             if not tune:
                 ko[..., nx:, :] = 0.0
             ko_tab = np.ascontiguousarray(np.swapaxes(ko, -1, -2).reshape(dg.size * ny, ny * na))
-            ko_avail = (db.kalman["out_status"].reshape(ny, -1) != OUT_NONE).any(axis=1).astype(np.int64)
+            ko_avail = np.ascontiguousarray(
+                (db.kalman["out_status"].reshape(ny, -1) != OUT_NONE).T.reshape(-1), dtype=np.int64)
         return cls(trim_tab, dyn_tab, t_pidx, d_pidx, dims, np.array(pairs, dtype=np.float64), classes,
                    np.array([float(s) for _, _, s in db.schedule]), s_corr, chans,
                    db.correction.theta_channel if db.correction else None,

@@ -122,3 +122,24 @@ def test_dead_t48_from_takeoff_keeps_fn_error_within_1_5x_of_all_sensors():
     full, part = est.run(log), est.run(dead)
     assert np.all(part.flags & FLAG_PARTIAL)
     assert fn_rms(part) <= 1.5 * fn_rms(full)
+
+
+def test_points_without_a_sensor_out_gain_skip_the_update_around_them():
+    """A point where the tuners are undetectable without sensor j has no gain without it
+    (out_status 2): between such a node and the others the update is skipped, elsewhere it goes
+    on; the reference filter does the same."""
+    db = with_sensor_out_gains(names_db(dyn_shape=(2, 3)), log=lambda *a: None)
+    db.kalman["K_out"][0][1, 2] = 0.0
+    db.kalman["out_status"][0][1, 2] = OUT_NONE
+    U, Y, S, TH, DE = inputs(db, n=300)
+    Y[:, 0] = np.nan
+    res = Estimator(db).run_arrays(U, Y, S, TH, DE)
+    assert_equals_reference(res, ReferenceFilter(db).run(U, Y, S, TH, DE))
+    p = db.operating_point(S, TH, DE)
+    dg = db.dyn_grid
+    near = np.ones(len(p), bool)   # inside the last cell of both axes: a corner is node (1, 2)
+    for j, a in enumerate(dg.axes):
+        near &= p[:, db.names["p"].index(a.name)] > a.values[-2]
+    assert near.any() and (~near).any()
+    assert np.all(res.flags[near] & FLAG_NO_UPDATE)
+    assert np.all(res.flags[~near] & FLAG_PARTIAL)
