@@ -1,4 +1,6 @@
-"""Flight logs: the one definition of the log file format (HDF5 and CSV), writer and reader.
+"""Flight logs: the one definition of pwl's log file format (HDF5 and CSV), its writer, and the
+readers of every log format pwl takes (:func:`read_log`: HDF5, CSV, Parquet, MAT, DataFrames,
+through a channel map if given; docs/runtime.md "Log formats").
 
 HDF5 layout (format ``pwl-flight-log`` version 1)::
 
@@ -14,9 +16,13 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import importlib
 import json
 import os
+import sys
+import warnings
 from dataclasses import dataclass, field
+from importlib.metadata import version
 
 import h5py
 import numpy as np
@@ -136,7 +142,7 @@ def write_csv(path, log: Log) -> None:
 @contextlib.contextmanager
 def _named(path, what: str = "damaged log"):
     """Any exception but pwl's own while reading ``path`` becomes a :class:`LogError` naming it
-    (HDF5, CSV and Parquet readers raise many kinds on a damaged file)."""
+    (HDF5, CSV, Parquet and MAT readers raise many kinds on a damaged file)."""
     try:
         yield
     except SealError as e:
@@ -147,23 +153,51 @@ def _named(path, what: str = "damaged log"):
         raise LogError(f"{path}: {what} ({type(e).__name__}: {' '.join(str(e).split())})") from None
 
 
-def read_log(path) -> Log:
-    """Read an HDF5, CSV or Parquet log; raises :class:`LogError` naming the file on any defect."""
-    path = os.fspath(path)
-    if not os.path.exists(path):
-        raise LogError(f"{path}: no such file")
-    if path.lower().endswith(".csv"):
-        with _named(path, "unreadable CSV log"):
-            return _read_csv(path)
-    if path.lower().endswith(".parquet"):
-        with _named(path, "unreadable Parquet log"):
-            return _read_parquet(path)
+def read_log(source, channel_map=None) -> Log:
+    """Read a flight log; raises :class:`LogError` naming the file (and column) on any defect.
+
+    ``source``: a path, by extension ``.csv``/``.tsv`` (CSV), ``.parquet``, ``.mat`` (MATLAB v5 or
+    v7.3), anything else HDF5 (pwl's own ``pwl-flight-log``); or a pandas DataFrame (the time
+    as a column or as the index). ``channel_map``: a :class:`pwl.channel_map.ChannelMap` or the
+    path of its TOML file; it picks, renames and declares the units of the columns the model
+    reads (and reads HDF5 files of other layouts). docs/runtime.md "Log formats" has the rules.
+    """
+    cmap = _channel_map(channel_map)
+    pd = sys.modules.get("pandas")
+    if pd is not None and isinstance(source, pd.DataFrame):
+        with _named("<DataFrame>", "unusable DataFrame"):
+            log = _from_frame("<DataFrame>", source, cmap)
+    else:
+        path = os.fspath(source)
+        if not os.path.exists(path):
+            raise LogError(f"{path}: no such file")
+        what, reader = _READERS.get(os.path.splitext(path)[1].lower(), ("HDF5", _read_hdf5))
+        with _named(path, f"unreadable {what} log"):
+            log = reader(path, cmap)
+    return cmap.apply(log) if cmap is not None else log
+
+
+def _channel_map(channel_map):
+    if channel_map is None:
+        return None
+    from .channel_map import ChannelMap
+    return channel_map if isinstance(channel_map, ChannelMap) else ChannelMap.load(channel_map)
+
+
+def _read_hdf5(path, cmap) -> Log:
+    if cmap is not None and not _is_flight_log(path):
+        return _read_h5_columns(path, cmap)
     head = read_header(path)
     log = read_rows(head, 0, len(head))
     with _named(path, "damaged log, cannot read /truth"), h5py.File(path, "r") as f:
         if "truth" in f:
             log.truth, log.truth_units = _read_group(f, "truth", len(head), path)
     return log
+
+
+def _is_flight_log(path) -> bool:
+    with h5py.File(path, "r") as f:
+        return attr_str(f, "format") == FORMAT
 
 
 def read_header(path) -> Log:
@@ -179,7 +213,8 @@ def read_header(path) -> Log:
         with h5py.File(path, "r") as f:
             fmt = attr_str(f, "format")
             if fmt != FORMAT:
-                raise LogError(f"{path}: not a flight log (format attribute {fmt!r}, expected {FORMAT!r})")
+                raise LogError(f"{path}: not a flight log (format attribute {fmt!r}, expected {FORMAT!r}; "
+                               "an HDF5 file of another layout reads with a channel map)")
             ver = int(f.attrs.get("format_version", -1))
             if ver > VERSION:
                 raise LogError(f"{path}: flight-log format version {ver} is newer than this pwl reads ({VERSION})")
@@ -253,46 +288,307 @@ def _split_header(cell: str):
     return cell, ""
 
 
-def _from_columns(path, names, units, data) -> Log:
-    if "time" not in names:
-        raise LogError(f"{path}: no 'time' column")
-    dup = sorted({n for n in names if names.count(n) > 1})
+# ---- columns of any format -> Log ---------------------------------------------------------------
+#: names of the time column, matched in this order and in any case (``Time``, ``TIME``, ...), on the
+#: name before any ``[unit]``; a channel map's ``[time] column`` overrides them
+TIME_NAMES = ("time", "timestamp", "datetime", "t")
+
+
+def _find_time(path, names) -> str | None:
+    """The time column of ``names``: the first of :data:`TIME_NAMES` that a column has (any case)."""
+    for want in TIME_NAMES:
+        hits = [n for n in names if n.lower() == want]
+        if len(hits) > 1:
+            raise LogError(f"{path}: columns {hits} could each be the time: name one in a channel map's "
+                           "[time] column")
+        if hits:
+            return hits[0]
+    return None
+
+
+def _declared(header: str, mapped: str, where: str) -> str:
+    """The unit of a column declared by the log (``header``) and/or a channel map (``mapped``)."""
+    if header and mapped and header != mapped:
+        raise LogError(f"{where}: the log declares unit {header!r}, the channel map {mapped!r}")
+    return mapped or header
+
+
+def _missing(path, column, where, have) -> LogError:
+    """The error for a column a channel map names (``where``) that the log lacks (has ``have``)."""
+    return LogError(f"{path}: column {column!r} is missing ({where}; log has: {', '.join(have)})")
+
+
+def _vector(path, name, v):
+    """A column as a 1-D array (a pandas Series as it is; (n, 1) and (1, n) arrays flattened)."""
+    if hasattr(v, "dtype") and getattr(v, "ndim", 0) == 1:
+        return v
+    a = np.asarray(v)
+    if a.ndim == 0 or a.size != max(a.shape):
+        raise LogError(f"{path}: column {name!r} has shape {a.shape}, expected one value per sample")
+    return a.reshape(-1)
+
+
+def _numeric(path, name, v) -> np.ndarray:
+    """Column ``name`` as a new float64 (n,) array: numbers and booleans as they are, missing
+    values (empty cells, None, NA) as NaN, text parsed as Python's ``float`` does (``1e400`` is
+    inf); a LogError names the first value that is not a number."""
+    import pandas as pd
+    s = v if isinstance(v, pd.Series) else pd.Series(v)
+    if pd.api.types.is_numeric_dtype(s.dtype):
+        return s.to_numpy(dtype=np.float64, na_value=np.nan, copy=True)
+    if not (s.dtype == object or pd.api.types.is_string_dtype(s.dtype)):
+        raise LogError(f"{path}: column {name!r} holds {s.dtype} values, not numbers")
+    a = s.to_numpy(dtype=object, na_value=np.nan)
+    try:
+        return a.astype(np.float64)
+    except (TypeError, ValueError):
+        for i, x in enumerate(a):
+            try:
+                float(x)
+            except (TypeError, ValueError):
+                raise LogError(f"{path}: column {name!r}: non-numeric value {x!r} at sample {i}") from None
+        raise
+
+
+def _seconds(path, name, unit, v):
+    """The time column as float64 (n,) seconds and the attributes it gives: numbers (converted
+    from ``unit``: ms, min, h) as they are; date-times (ISO 8601 text, datetime64, with or without
+    time zone) and durations (``00:01:02.5``, timedelta64) as seconds from the first sample, the
+    first date-time kept as the ``start_time`` attribute."""
+    import pandas as pd
+    s = v if isinstance(v, pd.Series) else pd.Series(v)
+    if not (pd.api.types.is_datetime64_any_dtype(s.dtype) or pd.api.types.is_timedelta64_dtype(s.dtype)):
+        try:
+            t = _numeric(path, name, s)
+        except LogError as e:
+            s = _parse_times(s, e)
+        else:
+            try:
+                scale, offset = converter(unit, "s", f"{path}: time column {name!r}")
+            except UnitError as e:
+                raise LogError(str(e)) from None
+            return t * scale + offset, {}
+    x = pd.Index(s)
+    if not len(x):
+        return np.zeros(0), {}
+    start = {"start_time": x[0].isoformat()} if isinstance(x, pd.DatetimeIndex) and not pd.isna(x[0]) else {}
+    return np.asarray((x - x[0]).total_seconds(), dtype=np.float64), start
+
+
+def _parse_times(s, err: LogError):
+    """Text (or objects) of a time column that are not numbers as date-times or durations."""
+    import pandas as pd
+    for parse in (lambda x: pd.to_datetime(x, format="ISO8601"),             # naive or one time zone
+                  lambda x: pd.to_datetime(x, format="ISO8601", utc=True),   # mixed offsets
+                  pd.to_timedelta):
+        try:
+            with warnings.catch_warnings():   # pandas 2: mixed offsets give objects and a warning
+                warnings.simplefilter("ignore", FutureWarning)
+                out = parse(s)
+        except (TypeError, ValueError):
+            continue
+        if pd.api.types.is_datetime64_any_dtype(out.dtype) or pd.api.types.is_timedelta64_dtype(out.dtype):
+            return out
+    raise LogError(f"{err}, and the column is not ISO 8601 date-times or durations either") from None
+
+
+def _from_columns(path, names, units, data, time=None, time_unit="", keep=None) -> Log:
+    """The Log of named columns: ``names[i]`` (without unit), ``units[i]`` ("" undeclared),
+    ``data[i]`` one value per sample (numbers, numeric text; for the time column also date-times
+    or durations). ``time``: the time column (default: found by :data:`TIME_NAMES`) and
+    ``time_unit`` (a channel map's); ``keep``: the columns to read -> where a channel map names
+    them (default all; the others are dropped unread). Columns ``truth.<name>`` are truth
+    channels. LogError on a missing or ambiguous time column, duplicate names, non-numeric
+    values, a column of another length."""
+    time = time or _find_time(path, names)
+    if time is None:
+        raise LogError(f"{path}: no 'time' column (one named {', '.join(TIME_NAMES)} in any case, "
+                       f"or a channel map's [time] column; columns: {', '.join(map(repr, names))})")
+    if time not in names:
+        raise LogError(f"{path}: no time column {time!r} (columns: {', '.join(map(repr, names))})")
+    missing = [c for c in keep or {} if c not in names]
+    if missing:
+        raise _missing(path, missing[0], keep[missing[0]], names)
+    wanted = [i for i, n in enumerate(names) if keep is None or n in keep or n == time]
+    dup = sorted({names[i] for i in wanted if names.count(names[i]) > 1})
     if dup:
         raise LogError(f"{path}: duplicate column(s) {dup}: which one to use is ambiguous")
-    cols = dict(zip(names, data))
-    cunits = dict(zip(names, units))
-    time = cols.pop("time")
-    cunits.pop("time")
-    chans = {k: v for k, v in cols.items() if not k.startswith("truth.")}
-    truth = {k[6:]: v for k, v in cols.items() if k.startswith("truth.")}
-    check_time(path, time)
-    return Log(time, chans, {k: cunits[k] for k in chans}, truth,
-               {k[6:]: cunits[k] for k in cunits if k.startswith("truth.")}, {}, path)
+    it = names.index(time)
+    seconds, attrs = _seconds(path, time, _declared(units[it], time_unit, f"{path}: time column {time!r}"),
+                              _vector(path, time, data[it]))
+    check_time(path, seconds)
+    chans, cunits, truth, tunits = {}, {}, {}, {}
+    for i in wanted:
+        if i == it:
+            continue
+        v = _numeric(path, names[i], _vector(path, names[i], data[i]))
+        if v.size != seconds.size:
+            raise LogError(f"{path}: column {names[i]!r} has {v.size} samples, "
+                           f"the time column {seconds.size}")
+        name, d, u = ((names[i][6:], truth, tunits) if names[i].startswith("truth.")
+                      else (names[i], chans, cunits))
+        d[name], u[name] = v, units[i]
+    return Log(seconds, chans, cunits, truth, tunits, attrs, path)
 
 
-def _read_csv(path) -> Log:
-    with open(path, newline="", encoding="utf-8") as fh:
-        rows = list(csv.reader(fh))
-    if not rows:
+def _select(cmap) -> dict:
+    """_from_columns' time, time_unit and keep for a channel map (none: every column)."""
+    return {} if cmap is None else {"time": cmap.time, "time_unit": cmap.time_unit, "keep": cmap.columns()}
+
+
+# ---- formats ------------------------------------------------------------------------------------
+def _from_frame(path, df, cmap, names=None) -> Log:
+    """A Log of a pandas DataFrame (``names``: the header cells when pandas renamed duplicates).
+    The index is a column too when it is named (``df.set_index("time")``) or holds date-times or
+    durations; the latter is the time when no column is."""
+    import pandas as pd
+    heads = [_split_header(str(c)) for c in (names or df.columns)]
+    names, units = [n for n, _ in heads], [u for _, u in heads]
+    data = [df.iloc[:, j] for j in range(df.shape[1])]
+    idx, sel = df.index, _select(cmap)
+    if idx.name is not None or isinstance(idx, (pd.DatetimeIndex, pd.TimedeltaIndex)):
+        name, unit = _split_header(str(idx.name if idx.name is not None else "index"))
+        names, units, data = [name] + names, [unit] + units, [idx.to_series()] + data
+        if not sel.get("time") and _find_time(path, names) is None:
+            sel["time"] = name
+    return _from_columns(path, names, units, data, **sel)
+
+
+def _read_csv(path, cmap) -> Log:
+    """CSV through pandas: separator sniffed from the header (comma, semicolon or tab; a decimal
+    comma when the separator is not a comma and the first row has one), UTF-8, empty cells NaN."""
+    import pandas as pd
+    with open(path, encoding="utf-8-sig", newline="") as fh:
+        header, first = fh.readline(), fh.readline()
+    if not header.strip():
         raise LogError(f"{path}: the file is empty")
-    names, units = zip(*[_split_header(c) for c in rows[0]])
-    body = [r for r in rows[1:] if r]
-    for i, r in enumerate(body):
-        if len(r) != len(names):
-            raise LogError(f"{path}: row {i + 2} has {len(r)} fields, header has {len(names)}")
-    try:
-        arr = np.array(body, dtype=np.float64).reshape(len(body), len(names))
-    except ValueError as e:
-        raise LogError(f"{path}: non-numeric value ({e})") from None
-    return _from_columns(path, list(names), list(units), list(arr.T))
+    sep = max(",;\t", key=header.count)
+    cells = next(csv.reader([header.rstrip("\r\n")], delimiter=sep))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", pd.errors.ParserWarning)   # pandas drops the extra fields
+        try:
+            df = pd.read_csv(path, sep=sep, decimal="," if sep != "," and "," in first else ".",
+                             index_col=False, encoding="utf-8", **_EXACT_FLOATS)
+        except pd.errors.ParserWarning:
+            raise LogError(f"{path}: row 2 has more fields than the header ({len(cells)})") from None
+    if len(cells) != df.shape[1]:
+        raise LogError(f"{path}: the header has {len(cells)} fields, pandas read {df.shape[1]} columns")
+    if len(cells) > 1 and df.shape[0] and df.iloc[:, -1].isna().any():   # short rows read as NaN
+        _check_row_lengths(path, sep, len(cells))
+    return _from_frame(path, df, cmap, names=cells)
 
 
-def _read_parquet(path) -> Log:
+#: pandas < 3 parses floats to within an ulp unless asked for the exact "round_trip" parser (the
+#: default and the only one from pandas 3 on); a CSV log must read back bit for bit
+_EXACT_FLOATS = {"float_precision": "round_trip"} if int(version("pandas").split(".")[0]) < 3 else {}
+
+
+def _check_row_lengths(path, sep, k) -> None:
+    """LogError naming the first non-blank row with fewer than ``k`` fields (pandas fills them with
+    NaN). Fields are counted by separators; a quoted separator counts too, so this runs only
+    when the last column has missing values."""
+    b = np.fromfile(path, dtype=np.uint8)
+    ends = np.flatnonzero(b == 10)
+    if b.size and b[-1] != 10:
+        ends = np.append(ends, b.size)
+    starts = np.r_[0, ends[:-1] + 1]
+    seps = np.flatnonzero(b == ord(sep))
+    fields = np.searchsorted(seps, ends) - np.searchsorted(seps, starts) + 1
+    blank = (ends - starts) - (b[np.maximum(ends - 1, 0)] == 13) <= 0
+    short = np.flatnonzero((fields < k) & ~blank)
+    if short.size:
+        raise LogError(f"{path}: row {short[0] + 1} has {fields[short[0]]} field(s), the header has {k}")
+
+
+def _read_parquet(path, cmap) -> Log:
     try:
-        import pyarrow.parquet as pq
+        importlib.import_module("pyarrow")
     except ImportError:
-        raise LogError(f"{path}: reading Parquet needs pyarrow (pip install pyarrow)") from None
-    t = pq.read_table(path)
-    names, units = zip(*[_split_header(c) for c in t.column_names])
-    data = [np.asarray(t.column(i).to_numpy(), dtype=np.float64) for i in range(t.num_columns)]
-    return _from_columns(path, list(names), list(units), data)
+        raise LogError(f"{path}: reading Parquet needs pyarrow: pip install 'pwl[parquet]'") from None
+    import pandas as pd
+    return _from_frame(path, pd.read_parquet(path, engine="pyarrow"), cmap)
+
+
+#: MATLAB variables that are not data
+_MAT_SKIP = ("__header__", "__version__", "__globals__", "#refs#", "#subsystem#")
+
+
+def _read_mat(path, cmap) -> Log:
+    """MAT file: v7.3 (HDF5) through h5py, older versions through scipy.io.loadmat. One vector
+    variable per column, or one struct of them; text and scalar variables become attributes;
+    units from an optional ``units`` variable: a struct (``units.Wf = 'kg/s'``) or a k x 2 cell
+    array of {name, unit} rows."""
+    if h5py.is_hdf5(path):
+        with h5py.File(path, "r") as f:
+            variables = {k: _mat73(f, f[k]) for k in f if k not in _MAT_SKIP}
+    else:
+        from scipy.io import loadmat
+        variables = {k: v for k, v in loadmat(path, simplify_cells=True).items() if k not in _MAT_SKIP}
+    units = variables.pop("units", {})
+    if len(variables) == 1 and isinstance(next(iter(variables.values())), dict):
+        variables = next(iter(variables.values()))               # one struct of vectors
+    if not isinstance(units, dict):
+        rows = np.asarray(units, dtype=object).reshape(-1, 2)
+        units = {_mat_text(a): _mat_text(b) for a, b in rows}
+    units = {k: _mat_text(u) for k, u in units.items()}
+    attrs, names, data = {}, [], []
+    for k, v in variables.items():
+        if isinstance(v, str) or (isinstance(v, np.ndarray) and v.dtype.kind == "U"):
+            attrs[k] = _mat_text(v)
+        elif np.ndim(v) == 0 or (isinstance(v, np.ndarray) and v.size == 1 and v.dtype.kind in "biuf"):
+            attrs[k] = v.item() if isinstance(v, np.ndarray) else v
+        else:
+            names.append(k)
+            data.append(v)
+    log = _from_columns(path, names, [units.get(k, "") for k in names], data, **_select(cmap))
+    log.attrs.update({k: v for k, v in attrs.items() if k not in log.attrs})
+    return log
+
+
+def _mat_text(v) -> str:
+    """MATLAB text as loadmat gives it (str, or an empty char array) as a str."""
+    if isinstance(v, np.ndarray):
+        return "".join(v.ravel().tolist())
+    return str(v)
+
+
+def _mat73(f, obj):
+    """A v7.3 MAT variable: struct -> dict, char -> str, cell -> object array, numbers -> array."""
+    cls = attr_str(obj, "MATLAB_class", "")
+    if isinstance(obj, h5py.Group):
+        return {k: _mat73(f, obj[k]) for k in obj}
+    if obj.attrs.get("MATLAB_empty", 0):
+        return "" if cls == "char" else np.zeros(0)
+    v = obj[()]
+    if cls == "char":
+        return "".join(map(chr, v.T.ravel()))
+    if cls == "cell":
+        return np.vectorize(lambda r: _mat73(f, f[r]), otypes=[object])(v.T)
+    return v.T
+
+
+def _read_h5_columns(path, cmap) -> Log:
+    """An HDF5 file of another layout through a channel map: one 1-D dataset per column, named
+    by its path (``data/FuelFlow``), unit from its ``unit`` or ``units`` attribute; the time from
+    the map's [time] column, else the dataset named by :data:`TIME_NAMES` beside the channels."""
+    with h5py.File(path, "r") as f:
+        for col, where in cmap.columns().items():
+            if not isinstance(f.get(col), h5py.Dataset):
+                raise LogError(f"{path}: no dataset {col!r} ({where})")
+        cols = sorted(cmap.columns())
+        time = cmap.time
+        if not time:
+            groups = sorted({c.strip("/").rpartition("/")[0] for c in cmap.columns()} & (set(f) | {""}))
+            near = [f"{g}/{k}".lstrip("/") for g in groups for k, d in (f[g] if g else f).items()
+                    if isinstance(d, h5py.Dataset)]
+            found = _find_time(path, [c.rpartition("/")[2] for c in near])
+            time = next((c for c in near if found and c.rpartition("/")[2] == found), None)
+        cols += [time] if time and time not in cols and isinstance(f.get(time), h5py.Dataset) else []
+        data = [f[c].asstr()[()] if h5py.check_string_dtype(f[c].dtype) else f[c][()] for c in cols]
+        units = [attr_str(f[c], "unit", "") or attr_str(f[c], "units", "") for c in cols]
+    return _from_columns(path, cols, units, data, time=time, time_unit=cmap.time_unit)
+
+
+#: file extension -> (format name, reader(path, channel map or None) -> Log); other: HDF5
+_READERS = {".csv": ("CSV", _read_csv), ".tsv": ("CSV", _read_csv),
+            ".parquet": ("Parquet", _read_parquet), ".mat": ("MAT", _read_mat)}

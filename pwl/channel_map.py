@@ -1,0 +1,115 @@
+"""Channel maps: a log's own column names and units -> the model's channel names (#15).
+
+A small TOML file read with the standard library's tomllib::
+
+    [time]                       # optional
+    column = "Timestamp"         # default: the column named time, timestamp, datetime or t
+    unit = "ms"                  # optional: s (default), ms, min, h; date-times need none
+
+    [channels]                   # model channel = log column, with its unit if the log has none
+    Wf = { column = "FuelFlow_lbs", unit = "lb/s" }
+    T2 = { column = "TAT_C", unit = "degC" }
+    Nf = "N1"                    # a column name alone: the unit is the log's (or undeclared)
+
+Every channel the model reads is listed: columns the map does not name (and truth channels) are
+dropped, so a log's other columns (text, status words) never stop a run. A unit is any symbol of
+:mod:`pwl.units`; the estimator converts it to the database's (``Log.require``). For HDF5 files of
+other layouts a column is a dataset path (``data/FuelFlow``). Errors name the TOML file and key.
+"""
+from __future__ import annotations
+
+import os
+import tomllib
+from dataclasses import dataclass
+
+from .logs import Log, LogError, _declared, _missing
+from .units import UNITS
+
+
+class ChannelMapError(LogError):
+    """A channel-map file that cannot be used; the message names the file and the key."""
+
+
+@dataclass(frozen=True)
+class ChannelMap:
+    """``channels``: model channel -> (log column, unit or "" for the log's own declaration);
+    ``time``: the log's time column ("" to find it by name), ``time_unit`` its unit ("" for s)."""
+
+    channels: dict[str, tuple[str, str]]
+    time: str = ""
+    time_unit: str = ""
+    path: str = "<channel map>"
+
+    @classmethod
+    def load(cls, path) -> "ChannelMap":
+        """Read and check a channel-map TOML file (:class:`ChannelMapError` naming the file and key)."""
+        path = os.fspath(path)
+        try:
+            with open(path, "rb") as fh:
+                doc = tomllib.load(fh)
+        except FileNotFoundError:
+            raise ChannelMapError(f"{path}: no such file") from None
+        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as e:
+            raise ChannelMapError(f"{path}: not a readable TOML file ({e})") from None
+        return cls.from_dict(doc, path)
+
+    @classmethod
+    def from_dict(cls, doc: dict, path: str = "<channel map>") -> "ChannelMap":
+        """The map of a parsed TOML document ``doc``, checked: key types, known units."""
+        def fail(key, msg):
+            raise ChannelMapError(f"{path}: {key}: {msg}")
+
+        for key in doc:
+            if key not in ("time", "channels"):
+                fail(key, "unknown key (a channel map has [time] and [channels])")
+        time = doc.get("time", {})
+        time = _entry({"column": time} if isinstance(time, str) else time, "[time]", ("column", "unit"), fail)
+        if time.get("unit", "") and UNITS.get(time["unit"], ("",))[0] != "time":
+            fail("[time] unit", f"{time['unit']!r} is not a unit of time (s, ms, min, h)")
+        chans = doc.get("channels")
+        if not isinstance(chans, dict) or not chans:
+            fail("[channels]", "missing or empty: a table of model channel = { column = ..., unit = ... }")
+        channels = {}
+        for name, spec in chans.items():
+            key = f"[channels] {name}"
+            e = _entry({"column": spec} if isinstance(spec, str) else spec, key, ("column", "unit"), fail)
+            if not e.get("column"):
+                fail(key, "needs a non-empty column = \"...\" (the log's column)")
+            if e.get("unit", "") and e["unit"] not in UNITS:
+                fail(f"{key} unit", f"{e['unit']!r} is not a unit pwl knows: {', '.join(UNITS)}")
+            channels[name] = (e["column"], e.get("unit", ""))
+        return cls(channels, time.get("column", ""), time.get("unit", ""), path)
+
+    def columns(self) -> dict[str, str]:
+        """The log columns the map reads (the time column aside) -> where the map names them
+        (``map.toml: [channels] Wf``), for error messages."""
+        out = {}
+        for name, (col, _) in self.channels.items():
+            out.setdefault(col, f"{self.path}: [channels] {name}")
+        return out
+
+    def apply(self, log: Log) -> Log:
+        """``log`` with the model's channel names and units: each mapped column renamed (a column
+        may feed several channels), its unit the map's or else the log's own (declared units that
+        differ are an error), every other column and truth channel dropped. The time stays as read
+        (``read_log(path, channel_map=...)`` uses the map's [time] column while reading)."""
+        channels, units = {}, {}
+        for name, (col, unit) in self.channels.items():
+            if col not in log.channels:
+                raise _missing(log.path, col, f"{self.path}: [channels] {name}", sorted(log.channels))
+            channels[name] = log.channels[col]
+            units[name] = _declared(log.units.get(col, ""), unit,
+                                    f"{log.path}: column {col!r} ({self.path}: [channels] {name})")
+        return Log(log.time, channels, units, attrs={**log.attrs, "channel_map": self.path}, path=log.path)
+
+
+def _entry(value, key: str, allowed, fail) -> dict:
+    """A TOML table of string values with only the ``allowed`` keys."""
+    if not isinstance(value, dict):
+        fail(key, f"expected a table or a column name, got {type(value).__name__} {value!r}")
+    for k, v in value.items():
+        if k not in allowed:
+            fail(f"{key} {k}", f"unknown key (allowed: {', '.join(allowed)})")
+        if not isinstance(v, str):
+            fail(f"{key} {k}", f"expected a string, got {type(v).__name__} {v!r}")
+    return value
