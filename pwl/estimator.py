@@ -80,6 +80,7 @@ class Estimator:
         self.channel_units = units | {c: u for c, (u, _, _) in lc.items()}
         self.ranges = {c: (lo, hi) for c, (_, lo, hi) in lc.items()}
         self._limits = self._column_limits()
+        self._VT = np.ascontiguousarray(self.db.tuner["V_pinv"].T)
         self._gate = self._misfit_gate()
         hr = db.attrs.get("health_ranges") or {}
         self._h_range = tuple(np.array([hr.get(h, (-np.inf, np.inf))[i] for h in db.names["h"]],
@@ -198,7 +199,7 @@ class Estimator:
         filter_loop(U, Y, S, TH, DE, *self._model_args(),
                     out["x_hat"], out["q_hat"], out["y_hat"], out["residual"], out["z_hat"],
                     out.get("bias_hat", np.empty((n, 0))), out.get("h_std", np.empty((n, 0))), flags)
-        report(out["q_hat"], db.tuner["V_pinv"], db.tuner["h_ref"], *self._h_range, out["h_hat"], flags)
+        report(out["q_hat"], self._VT, db.tuner["h_ref"], *self._h_range, out["h_hat"], flags)
         self._count_channels(chan_count)
         t = np.arange(n, dtype=np.float64) * db.dt if time is None else np.asarray(time, dtype=np.float64)
         return Result(t, out, flags, self.names)

@@ -517,7 +517,7 @@ def _screen_block(A, k, lim, c0, chan_count):
     return f
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, _nrt=False)
 def screen(U, Y, S, TH, DE, lim, chan_count, flags):
     """The plausibility pass before :func:`filter_loop`: U (n, nu), Y (n, ny), S (n, ns), TH, DE
     (n,) as the filter gets them; lim (2, nu+ny+ns+2) the plausible [lo, hi] of every column
@@ -559,29 +559,27 @@ def blank_implausible(arrays, lim):
     return out
 
 
-@njit(cache=True, nogil=True)
-def report(q_hat, V_pinv, h_ref, h_lo, h_hi, h_out, flags):
+@njit(cache=True, nogil=True, _nrt=False)
+def report(q_hat, VT, h_ref, h_lo, h_hi, h_out, flags):
     """The pass after :func:`filter_loop`: health estimates h = h_ref + V_pinv q into h_out (n, nh)
-    from q_hat (n, nq) (sample by sample in a fixed order, so a one-sample call gives the same
-    bits as a long one; NaN tuners give NaN health); FLAG_HEALTH added to flags (n,) where a
-    health estimate is outside [h_lo, h_hi] (nh,) (it only reports)."""
+    from q_hat (n, nq), VT = V_pinv^T (nq, nh) C-contiguous (sample by sample in a fixed order,
+    so a one-sample call gives the same bits as a long one; NaN tuners give NaN health);
+    FLAG_HEALTH added to flags (n,) where a health estimate is outside [h_lo, h_hi] (nh,) (it
+    only reports). Allocates nothing and returns nothing (compiled without reference counting,
+    an array returned to a caller with it would be freed twice)."""
     nh = h_ref.shape[0]
-    VT = np.ascontiguousarray(V_pinv.T)
-    acc = np.empty(nh)
     for k in range(q_hat.shape[0]):
         for i in range(nh):
-            acc[i] = h_ref[i]
+            h_out[k, i] = h_ref[i]
         for j in range(q_hat.shape[1]):   # column by column: the loop over i vectorises
             c = q_hat[k, j]
             for i in range(nh):
-                acc[i] += VT[j, i] * c
+                h_out[k, i] += VT[j, i] * c
         out = False
         for i in range(nh):
-            h_out[k, i] = acc[i]
-            out |= (acc[i] < h_lo[i]) | (acc[i] > h_hi[i])   # no branch here: it costs ~40 %
+            out |= (h_out[k, i] < h_lo[i]) | (h_out[k, i] > h_hi[i])   # no branch here: it costs ~40 %
         if out:
             flags[k] |= FLAG_HEALTH
-    return flags
 
 
 def augment(d: dict, V_pinv: np.ndarray) -> dict:

@@ -54,7 +54,7 @@ def _stream_step(st, row):
         S[0, j] = row[i_s[j]]
     TH[0] = row[ith] / t_std if ith >= 0 else 1.0
     DE[0] = row[ide] / p_std if ide >= 0 else 1.0
-    lim, chan_count, q_hat, V_pinv, h_ref, h_lo, h_hi, h_hat = st.post
+    lim, chan_count, q_hat, VT, h_ref, h_lo, h_hi, h_hat = st.post
     if screen(U, Y, S, TH, DE, lim, chan_count, flags):
         _blank_row(U, lim, 0)
         _blank_row(Y, lim, U.shape[1])
@@ -65,7 +65,7 @@ def _stream_step(st, row):
         if not lim[0, c + 1] <= DE[0] <= lim[1, c + 1]:
             DE[0] = np.nan
     _steps(*((U, Y, S, TH, DE) + st.model + st.outs + (flags, st.work)))
-    report(q_hat, V_pinv, h_ref, h_lo, h_hi, h_hat, flags)
+    report(q_hat, VT, h_ref, h_lo, h_hi, h_hat, flags)
     return flags[0]
 
 
@@ -111,7 +111,7 @@ class Stream:
         work = workspace(ns, pm.trim_tab, pm.dyn_tab, pm.t_pidx, pm.d_pidx, pm.dims, pm.ex,
                          est._b_vals, est._b_pidx, pm.online, est.cov, pm.ko_tab)
         self._chan_count = np.zeros((2, est._limits.shape[1]), dtype=np.int64)
-        post = (est._limits, self._chan_count, self.outputs["q_hat"], db.tuner["V_pinv"],
+        post = (est._limits, self._chan_count, self.outputs["q_hat"], est._VT,
                 db.tuner["h_ref"], *est._h_range, self.outputs["h_hat"])
         self._st = _StreamState(io, tuple(index) + th, model, outs, work, post)
         self._check = db.policy == "error"
