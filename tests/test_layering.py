@@ -30,3 +30,14 @@ def test_models_import_neither_pwl_nor_linearize():
             + "print(','.join(m for m in ('pwl', 'linearize') if m in sys.modules))\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "", f"models pulled in: {out.stdout.strip()}"
+
+
+def test_public_names_import_from_pwl_lazily():
+    code = ("import sys, pwl\n"
+            "light = 'pwl.estimator' not in sys.modules and 'pandas' not in sys.modules\n"
+            "from pwl import *\n"
+            "g = globals()\n"
+            "missing = [n for n in pwl.__all__ if n not in g and n != '__version__']\n"
+            "print(light, missing, pwl.Estimator.__module__, pwl.Stream.__module__)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["True", "[]", "pwl.estimator", "pwl.streaming"]
