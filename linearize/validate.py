@@ -86,6 +86,43 @@ def steady_state(db: GainDatabase, plant=None, n: int = 20, seed: int = 0, settl
     return np.array(errs), np.array(pts), failed
 
 
+def scheduled_trims(db: GainDatabase, plant=None, n: int = 200, seed: int = 1):
+    """Percent errors (n_points, ny + nz) of the interpolated trims at random off-grid points,
+    matched on the scheduling variables the runtime computes from the plant's own channels (its
+    corrected fan speed, not its fuel flow): the plant is trimmed at p, the runtime's p is
+    formed from that trim's log channels (:meth:`GainDatabase.operating_point`), the trim tables
+    are interpolated there and un-corrected, and compared with the plant's y and z. This is the
+    offset every estimate inherits at steady state. Returns (errors, points, failed)."""
+    from pwl.interp import interpolate
+
+    plant = plant or plant_of(db)
+    h = db.tuner["h_ref"]
+    chans = [c for c, _, _ in db.schedule]
+    pts, errs, failed = [], [], []
+    for p in random_points(db.trim_grid, n, seed):
+        env = plant.environment(p)
+        try:
+            t = plant.trim(p, h, env)
+        except Exception as e:  # reported, not hidden
+            failed.append((p, str(e)))
+            continue
+        log = log_of(plant, db, p, env, *(np.asarray(t[k], dtype=np.float64)[None, :] for k in "xuyz"))
+        S = np.column_stack([log.channels[c] for c in chans])
+        th = de = np.ones(1)
+        if db.correction is not None:
+            th = log.channels[db.correction.theta_channel] / db.correction.T_std
+            de = log.channels[db.correction.delta_channel] / db.correction.P_std
+        q = db.operating_point(S, th, de)[0]
+        at = [q[db.names["p"].index(a.name)] for a in db.trim_grid.axes]
+        model = np.concatenate([
+            interpolate(db.trim_grid, db.trim[k], np.array(at))[0]
+            * db.correction_factor(db.names[k], th, de)[0] for k in "yz"])
+        truth = np.concatenate([t["y"], t["z"]])
+        errs.append(100.0 * (model - truth) / np.abs(truth))
+        pts.append(p)
+    return np.array(errs), np.array(pts), failed
+
+
 def simulate(plant, x0, U, h, env, dt: float):
     """Integrate the plant over inputs U (n, nu) held per step (RK4 on the unbalanced solve);
     returns x, y, z at every sample (n, .)."""

@@ -292,6 +292,11 @@ def test_validate_linear_plant(tmp_path):
     assert np.abs(errs).max() < 1e-8
     tr = fuel_step(db, step=0.05, seconds=4.0)
     assert np.abs(tr["error"]).max() < 0.1
+    # the trim tables at the runtime's scheduling variables: a linear plant's trims are linear
+    # in p, so multilinear interpolation is exact (the plant's own trim is the reference)
+    from linearize.validate import scheduled_trims
+    errs, pts, failed = scheduled_trims(db, n=5)
+    assert not failed and len(pts) == 5 and np.abs(errs).max() < 1e-8
     moved = np.abs(tr["truth"][-1] - tr["truth"][0]) / np.abs(tr["truth"][0])
     assert moved.max() > 1e-3  # the step did move the plant
 

@@ -132,9 +132,13 @@ def test_every_output_path_is_checked_first(argv, capsys, unwritable):
 
 # ---- 3. pwl validate: a limit, a verdict, labelled plot ---------------------------------------
 def test_validate_passes_the_shipped_database(capsys):
-    assert main(["validate", DB, "-n", "8"]) == 0
+    assert main(["validate", DB, "-n", "8", "--trim-points", "20"]) == 0
     out = capsys.readouterr().out
     assert "limit 2 %" in out and "passed" in out and "FAILED" not in out
+    assert "trim tables at 20 random off-grid points" in out
+    # a tighter limit fails on the trim tables (their interpolation error is ~1 % on this grid)
+    assert main(["validate", DB, "-n", "2", "--trim-points", "20", "--max-error", "0.5"]) == 1
+    assert "FAILED trim tables:" in capsys.readouterr().out
 
 
 def test_validate_fails_a_database_with_a_corrupted_matrix(tmp_path, capsys):

@@ -4,7 +4,8 @@ import numpy as np
 from .output import check_output, plot_or_note
 
 #: default --max-error, % of the plant's value: the shipped demo database stays below 0.8 %
-#: (steady state, 20 and 60 random points) and 0.5 % (5 % step), a wrong matrix goes far above
+#: (steady state, 20 and 60 random points), 1.5 % (trim tables at 200 points, matched on the
+#: scheduling variables) and 0.5 % (5 % step); a wrong matrix goes far above
 MAX_ERROR = 2.0
 
 HELP = ("compare the piecewise-linear model (open loop) with the nonlinear plant: steady state and "
@@ -16,6 +17,9 @@ def add_arguments(p):
     p.add_argument("database", help="gain database (HDF5) built by pwl build")
     p.add_argument("-n", "--points", type=int, default=20,
                    help="random off-grid steady-state points (default %(default)s)")
+    p.add_argument("--trim-points", type=int, default=200,
+                   help="random off-grid points of the trim-table check at the runtime's scheduling "
+                        "variables (default %(default)s; 0: skip)")
     p.add_argument("--seed", type=int, default=0, help="seed of the random points (default %(default)s)")
     p.add_argument("--step", type=float, default=0.05,
                    help="input step of the transient, fraction of the trim input (default %(default)g)")
@@ -48,7 +52,7 @@ def failures(check, names, errs, max_error):
 
 
 def run(args) -> int:
-    from linearize.validate import fuel_step, plant_of, steady_state
+    from linearize.validate import fuel_step, plant_of, scheduled_trims, steady_state
     from pwl.database import GainDatabase
 
     check_output(args.plot)
@@ -63,12 +67,22 @@ def run(args) -> int:
         bad = [f"steady state: the plant's trim failed at every one of the {args.points} points"]
     for p, e in failed:
         print(f"  (plant trim failed at {np.round(p, 4).tolist()}: {e})")
+    worst_trim = np.nan
+    if args.trim_points > 0:
+        te, tp, tfail = scheduled_trims(db, plant, args.trim_points, args.seed + 1)
+        if len(tp):
+            table(f"\ntrim tables at {len(tp)} random off-grid points, matched on the runtime's scheduling "
+                  "variables, model vs plant:", names, te)
+            bad += failures("trim tables", names, te, args.max_error)
+            worst_trim = np.abs(te).max()
+        for p_, e in tfail:
+            print(f"  (plant trim failed at {np.round(p_, 4).tolist()}: {e})")
     tr = fuel_step(db, plant, step=args.step)
     p = ", ".join(f"{a.name}={v:.4g}" for a, v in zip(db.trim_grid.axes, tr["p"]))
     table(f"\ntransient: {100 * args.step:g} % input step at {p}, model vs plant:", names, tr["error"])
     bad += failures("transient", names, tr["error"], args.max_error)
     worst = np.abs(errs).max() if len(pts) else np.nan
-    print(f"\nworst steady-state error {worst:.3f} %, worst transient error "
+    print(f"\nworst steady-state error {worst:.3f} %, trim tables {worst_trim:.3f} %, worst transient error "
           f"{np.abs(tr['error']).max():.3f} % (limit {args.max_error:g} %)")
     for line in bad:
         print(f"FAILED {line}")
