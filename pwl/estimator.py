@@ -56,8 +56,13 @@ class Estimator:
     """
 
     def __init__(self, db, q0=None, tune: bool = True, bias: dict | None = None, online: bool = False,
-                 health_std: bool = True, zones: bool = False, resample: bool = False):
+                 health_std: bool = True, zones: bool = False, resample: bool = False,
+                 channel_map=None):
         self.db = db if isinstance(db, GainDatabase) else GainDatabase.open(db)
+        if channel_map is not None and not hasattr(channel_map, "apply"):
+            from .channel_map import ChannelMap
+            channel_map = ChannelMap.load(channel_map)
+        self.channel_map = channel_map   # logs read from files go through it (pwl.channel_map)
         self.tune = tune
         self.resample = resample
         zt = None
@@ -282,7 +287,7 @@ class Estimator:
 
     def run(self, log, reset: bool = True) -> Result:
         """Estimates for a whole log (a :class:`Log` or a path); resets the filter first by default."""
-        log = log if isinstance(log, Log) else read_log(log)
+        log = log if isinstance(log, Log) else read_log(log, channel_map=self.channel_map)
         if reset:
             self.reset()
         log = self._check_interval(log)
@@ -342,6 +347,10 @@ class Estimator:
             mode += "+untuned"
         if self.bias:
             mode += "+bias"
+        if self.channel_map is not None:   # another map, another reading of the same log
+            from .h5io import file_digest
+            cm = self.channel_map.path
+            mode += f"+map:{file_digest(cm)[:16] if os.path.isfile(cm) else cm}"
         return {"database": os.path.abspath(self.db.path) if self.db.path != "<memory>" else "<memory>",
                 "database_digest": self.db.digest, "mode": mode, "pwl_version": __version__,
                 "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")}
@@ -398,41 +407,60 @@ class Estimator:
             raise EnvelopeError(f"{where}: operating point outside the database grid at sample {i} "
                                 f"(t = {time[i]:g} s) and the database's out-of-range policy is 'error'")
 
-    def run_file(self, log_path, out_path, chunk: int = 1 << 16) -> dict:
+    def run_file(self, log_path, out_path, chunk: int = 1 << 16, outputs=None, every: int = 1,
+                 compression: str | None = None) -> dict:
         """Process one log file to one results file, chunk by chunk (bounded memory).
 
-        HDF5 logs are read ``chunk`` samples at a time; CSV/Parquet logs are read whole. Returns the
-        flag counts. The results file appears only when complete.
+        HDF5 logs are read ``chunk`` samples at a time; CSV/Parquet logs are read whole.
+        ``outputs``: the outputs to write (names or a comma-separated string; None: all of
+        :attr:`names`; time and flags are always written); ``every``: write samples 0, N, 2N, ...
+        of the log only; ``compression``: None (the default), "gzip" (deflate level 4 with
+        shuffle) or "lzf" (see :data:`pwl.results.COMPRESSIONS`). The counts, the residual RMS
+        and the snapshots always come from every sample. The results file appears only when
+        complete.
+
+        Returns the flag counts, ``snapshots`` (how many), ``missing_channels`` (channel ->
+        samples) and ``residual_rms`` (sensor -> RMS of its residuals, sensor units).
         """
+        from .results import Totals, output_units, select_outputs, selection_record, thin_rows
+
         log_path = os.fspath(log_path)
+        keep = select_outputs(self.names, outputs, where=f"{log_path} -> {os.fspath(out_path)}")
+        record = selection_record(keep, every)
+        units = output_units(self.names, self.db.names, self.db.units)
         self.reset()
-        head = None if not log_path.lower().endswith((".h5", ".hdf5")) else read_header(log_path)
+        head = None if self.channel_map is not None or not log_path.lower().endswith((".h5", ".hdf5")) \
+            else read_header(log_path)
         if head is not None:
             head = self._check_interval(head, whole=lambda: read_log(log_path))
+        totals = Totals()
         if os.fspath(out_path).lower().endswith(".csv") or head is None or "resampled_from" in head.attrs:
             res = self.run(head if head is not None and head.channels else log_path, reset=False)
-            res.save(out_path)
-            return res.counts() | {"snapshots": len(res.snapshots), "missing_channels": dict(self.missing)}
-        n = len(head)
-        counts = None
-        acc = self._snapshot_accumulator(head.dt)
-        with atomic_h5(out_path) as f:
-            init_result_file(f, self.names, log_path, {}, 0, head.attrs, self.provenance)
-            for a in range(0, n, chunk):
-                part = read_rows(head, a, min(n, a + chunk))
-                arrays = self._split(part)
-                res = self.run_arrays(*arrays, time=part.time)
-                self._check_envelope(res.flags, res.time, log_path)
-                append_rows(f, res.time, res.outputs, res.flags)
-                self._accumulate(acc, a, res, arrays)
-                c = res.counts()
-                counts = c if counts is None else {k: counts[k] + c[k] for k in c}
-            for k, v in (counts | self._log_record(head)).items():
-                f.attrs[k] = v
-            snaps = acc.snapshots()
-            snaps.save(f.create_group("snapshots"))
-        counts["snapshots"] = len(snaps)
-        return counts | {"missing_channels": dict(self.missing)}
+            res.units = units
+            res.save(out_path, keep, every, compression)
+            totals.add(res)
+            snaps = res.snapshots
+        else:
+            n = len(head)
+            acc = self._snapshot_accumulator(head.dt)
+            with atomic_h5(out_path) as f:
+                init_result_file(f, {o: self.names[o] for o in keep}, log_path, {}, 0, head.attrs,
+                                 self.provenance | record, units, compression)
+                for a in range(0, n, chunk):
+                    part = read_rows(head, a, min(n, a + chunk))
+                    arrays = self._split(part)
+                    res = self.run_arrays(*arrays, time=part.time)
+                    self._check_envelope(res.flags, res.time, log_path)
+                    rows = thin_rows(a, len(part), every)
+                    append_rows(f, res.time[rows], {o: res.outputs[o][rows] for o in keep}, res.flags[rows])
+                    self._accumulate(acc, a, res, arrays)
+                    totals.add(res)
+                for k, v in (totals.attrs() | self._log_record(head)).items():
+                    f.attrs[k] = v
+                snaps = acc.snapshots()
+                snaps.save(f.create_group("snapshots"))
+        return totals.counts | {"snapshots": len(snaps), "missing_channels": dict(self.missing),
+                                "residual_rms": dict(zip(totals.sensors, totals.residual_rms().tolist()))}
 
 
 def load_bias_tables(path) -> dict:

@@ -1,26 +1,203 @@
-"""Many logs to many results files, in parallel worker processes (``pwl run``)."""
+"""Many logs to many results files through any executor (``pwl run``).
+
+:func:`run_many` submits one task per log (:func:`run_log`) to a ``concurrent.futures``-style
+executor: a local process pool by default, or anything with ``submit`` returning futures with
+``result()``, such as a ``dask.distributed.Client``. Every worker process opens the gain database
+once (a per-process cache keyed by its path, digest and the estimator options) and keeps one
+:class:`Estimator` per thread. A results file whose provenance shows the same database, mode, log
+and output selection is not computed again (``force`` recomputes); results files appear
+atomically, so a killed run leaves finished files and temporary files only, which the next run
+removes. :func:`write_summary` writes the fleet summary from the results files.
+"""
 from __future__ import annotations
 
+import csv
+import importlib.util
 import os
+import socket
+import sys
+import threading
+from concurrent.futures import Future, ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
+from typing import NamedTuple
 
+from threadpoolctl import threadpool_limits
+
+from .database import DatabaseError, GainDatabase
 from .errors import UsageError
 from .estimator import Estimator
+from .h5io import attr_str, file_digest
+from .results import (COUNT_KEYS, DEFAULT_COMPRESSION, ResultError, check_every, compression_filters,
+                      file_summary, open_results, select_outputs, selection_record)
 
-_worker_est = None
+OK, SKIPPED, FAILED = "ok", "skipped", "failed"
+
+#: the shared user cache of numba's compiled code (NUMBA_CACHE_DIR unless the user set it)
+USER_NUMBA_CACHE = os.path.join("~", ".cache", "pwl", "numba")
 
 
-def _init_worker(db_path, online=False, zones=False, resample=False):
-    global _worker_est
-    _worker_est = Estimator(db_path, online=online, zones=zones, resample=resample)
+class LogRun(NamedTuple):
+    """One log of :func:`run_many`: its results file, the flag counts (None when failed), the
+    error message (None when not failed), status ``ok``, ``skipped`` (finished by an earlier run)
+    or ``failed``, and its row of the fleet summary (from the results file)."""
+
+    log: str
+    output: str
+    counts: dict | None
+    error: str | None
+    status: str
+    row: dict
 
 
-def _run_one(log_path, out_path):
+@dataclass(frozen=True)
+class Job:
+    """What every log of one :func:`run_many` call is run with (sent to the workers).
+
+    ``database``: absolute path; ``digest``: the database's digest when the run started (a
+    worker refuses a database that changed since); ``outputs``: selected output names (None:
+    all); ``host``: the machine that submitted the run (workers elsewhere use the user numba
+    cache)."""
+
+    database: str
+    digest: str
+    online: bool = False
+    zones: bool = False
+    resample: bool = False
+    channel_map: str | None = None
+    outputs: tuple | None = None
+    every: int = 1
+    compression: str | None = DEFAULT_COMPRESSION
+    force: bool = False
+    host: str = ""
+
+    def estimator_key(self) -> tuple:
+        return (self.database, self.digest, self.online, self.zones, self.resample, self.channel_map)
+
+
+# ---- worker side ---------------------------------------------------------------------------------
+_DATABASES: dict = {}             # (path, digest) -> GainDatabase: opened once per process
+_THREAD = threading.local()       # .estimators: key -> Estimator (an Estimator is not thread-safe)
+_LOCK = threading.Lock()
+_NUMBA_READY = []                 # [cache folder or None] once this process has chosen its cache
+
+
+def numba_cache_dir(remote: bool = False) -> str | None:
+    """Where this process should keep numba's compiled kernels: ``NUMBA_CACHE_DIR`` when the
+    user set it; None (numba's ``cache=True`` default, ``__pycache__`` beside pwl's sources)
+    when that folder is writable and this is not a worker on another machine (``remote``); else
+    the shared user cache ``~/.cache/pwl/numba``."""
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return os.environ["NUMBA_CACHE_DIR"]
+    here = os.path.join(os.path.dirname(os.path.abspath(__file__)), "__pycache__")
+    if not remote and os.access(here if os.path.isdir(here) else os.path.dirname(here), os.W_OK):
+        return None
+    return os.path.expanduser(USER_NUMBA_CACHE)
+
+
+def use_numba_cache(path: str) -> int:
+    """Cache pwl's numba kernels in ``path`` from now on: sets ``NUMBA_CACHE_DIR`` and numba's
+    config, and re-points every pwl kernel that has not compiled yet (numba chooses a kernel's
+    cache folder when its module is imported, before a worker can set the variable). Returns
+    how many kernels were re-pointed."""
+    from numba.core import config
+    from numba.core.dispatcher import Dispatcher
+
+    os.makedirs(path, exist_ok=True)
+    os.environ["NUMBA_CACHE_DIR"] = config.CACHE_DIR = path
+    seen, n = set(), 0
+    for name, mod in list(sys.modules.items()):
+        if not (name == "pwl" or name.startswith("pwl.")) or mod is None:
+            continue
+        for obj in list(vars(mod).values()):
+            cache = getattr(obj, "_cache", None)
+            if (isinstance(obj, Dispatcher) and id(obj) not in seen and not obj.overloads
+                    and type(cache).__name__ == "FunctionCache"):   # cache=True, nothing compiled yet
+                seen.add(id(obj))
+                obj.enable_caching()
+                n += 1
+    return n
+
+
+def _prepare_numba(job: Job) -> None:
+    """Choose this process's numba cache once, before its first kernel compiles."""
+    if not _NUMBA_READY:
+        path = numba_cache_dir(remote=bool(job.host) and job.host != socket.gethostname())
+        if path:
+            use_numba_cache(path)
+        _NUMBA_READY.append(path)
+
+
+def _estimator(job: Job) -> Estimator:
+    """This thread's estimator for ``job`` (the database opened once per process)."""
+    cache = _THREAD.__dict__.setdefault("estimators", {})
+    key = job.estimator_key()
+    if key not in cache:
+        with _LOCK:
+            _prepare_numba(job)
+            db = _DATABASES.get(key[:2])
+            if db is None:
+                db = GainDatabase.open(job.database)
+                if db.digest != job.digest:
+                    raise DatabaseError(f"{job.database}: changed since this run started (sha256 "
+                                        f"{db.digest[:12]}... instead of {job.digest[:12]}...); run again")
+                _DATABASES[key[:2]] = db
+        cache[key] = Estimator(db, online=job.online, zones=job.zones, resample=job.resample,
+                               channel_map=job.channel_map)
+    return cache[key]
+
+
+def finished(est: Estimator, job: Job, log_path: str, out_path: str) -> dict | None:
+    """The summary row of ``out_path`` when it already holds what ``job`` would write for
+    ``log_path`` (same database digest, mode, log digest, outputs and ``every``; its seal
+    intact); None when it must be computed (missing, unreadable, or made otherwise)."""
+    if not os.path.exists(out_path):
+        return None
     try:
-        return log_path, out_path, _worker_est.run_file(log_path, out_path), None
-    except Exception as e:  # one bad log must not lose the others: report it, go on
-        return log_path, out_path, None, f"{type(e).__name__}: {e}"
+        want = {"database_digest": est.db.digest, "mode": est.provenance["mode"],
+                "log_digest": file_digest(log_path)}
+    except OSError:            # the log is missing: run_file names it
+        return None
+    want |= selection_record(select_outputs(est.names, job.outputs), job.every)
+    try:
+        with open_results(out_path) as f:
+            if all(str(attr_str(f, k)) == str(v) for k, v in want.items()):
+                return file_summary(f)
+    except ResultError:
+        pass
+    return None
 
 
+def run_log(job: Job, log_path: str, out_path: str) -> LogRun:
+    """Worker task: one log to its results file, or skipped when it is already there (see
+    :func:`finished`). Any error is returned in the :class:`LogRun`, never raised: one bad log
+    must not lose the others. BLAS runs on one thread here: the logs are the parallelism, and
+    OpenBLAS's own threads wait for the cores other workers use (2 workers ran 1.6-1.7x one
+    worker's rate with them, 1.9x without)."""
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _run_log(job, log_path, out_path)
+
+
+def _run_log(job: Job, log_path: str, out_path: str) -> LogRun:
+    csv_out = out_path.lower().endswith(".csv")
+    try:
+        est = _estimator(job)
+        if not job.force and not csv_out:
+            row = finished(est, job, log_path, out_path)
+            if row is not None:
+                return LogRun(log_path, out_path, {k: row[k] for k in COUNT_KEYS}, None, SKIPPED, row)
+        counts = est.run_file(log_path, out_path, outputs=job.outputs, every=job.every,
+                              compression=job.compression)
+        if csv_out:
+            row = {k: counts[k] for k in COUNT_KEYS} | {f"rms.{s}": v for s, v in counts["residual_rms"].items()}
+        else:
+            with open_results(out_path, verify=False) as f:    # just written and sealed here
+                row = file_summary(f)
+        return LogRun(log_path, out_path, counts, None, OK, row)
+    except Exception as e:  # reported with the log; the others go on
+        return LogRun(log_path, out_path, None, f"{type(e).__name__}: {e}", FAILED, {})
+
+
+# ---- the submitting side -------------------------------------------------------------------------
 def output_path(log_path, outdir, csv: bool = False, name: str | None = None) -> str:
     """Results file of a log: ``outdir/<name without extension>.estimates.h5`` (``.csv``); ``name``
     defaults to the log's file name and may hold sub-folders (``ESN001/flight_003.h5``)."""
@@ -49,37 +226,160 @@ def result_names(log_paths, names=None) -> list[str]:
     return out
 
 
+def remove_stale_temporaries(outs) -> int:
+    """Remove the temporary files a killed run left beside the results files ``outs`` (HDF5
+    writes go to ``.NAME.<random>.tmp`` and are renamed when complete); returns how many."""
+    prefixes: dict[str, set] = {}
+    for out in outs:
+        prefixes.setdefault(os.path.dirname(out) or ".", set()).add("." + os.path.basename(out))
+    n = 0
+    for folder, mine in prefixes.items():
+        try:
+            names = os.listdir(folder)
+        except FileNotFoundError:
+            continue
+        for name in names:
+            if name.endswith(".tmp") and name[:-4].rpartition(".")[0] in mine:
+                try:
+                    os.remove(os.path.join(folder, name))
+                    n += 1
+                except FileNotFoundError:
+                    pass
+    return n
+
+
 def run_many(db_path, log_paths, outdir, workers: int | None = None, csv: bool = False,
              progress=None, online: bool = False, zones: bool = False, names=None,
-             resample: bool = False):
-    """Estimate every log into ``outdir`` (one results file per log), in parallel processes
-    (``online``, ``zones``, ``resample``: the full Kalman filter, the zone gains, logs resampled to
-    the database's dt, as for :class:`Estimator`).
-    ``names``: results names relative to ``outdir`` (see :func:`result_names`; folder trees such as
-    a fleet's ``ESN001/flight_000.h5`` keep their sub-folders).
+             resample: bool = False, *, channel_map=None, executor=None, outputs=None, every: int = 1,
+             compression: str | None = DEFAULT_COMPRESSION, force: bool = False) -> list[LogRun]:
+    """Estimate every log into ``outdir`` (one results file per log, see :func:`run_log`).
 
-    Returns a list of (log, output, counts or None, error message or None) in input order; a log
-    that fails is reported and the others still complete. ``progress(done, total, item)`` is
-    called after each log.
+    ``online``, ``zones``, ``resample``: the full Kalman filter, the zone gains, logs resampled
+    to the database's dt, as for :class:`Estimator`; ``channel_map``: a channel-map TOML path that
+    every log is read through (:mod:`pwl.channel_map`). ``names``: results names relative to
+    ``outdir`` (see :func:`result_names`; folder trees such as a fleet's ``ESN001/flight_000.h5``
+    keep their sub-folders). ``outputs``, ``every``, ``compression``: what the results files hold
+    (see :meth:`Estimator.run_file`). ``force``: recompute logs whose results are already there.
+
+    ``executor``: any object whose ``submit(fn, *args)`` returns a future with ``result()``: a
+    ``concurrent.futures`` executor, a ``dask.distributed.Client`` (its workers must see the
+    database, the logs and ``outdir`` at the same paths); default: a process pool of ``workers``
+    processes (one: this process). It is not shut down here.
+
+    Returns a :class:`LogRun` per log in input order; a log that fails is reported and the others
+    still complete. ``progress(done, total, item)`` is called as each log finishes.
     """
-    from concurrent.futures import ProcessPoolExecutor
-
     logs = [os.fspath(p) for p in log_paths]
     outs = [output_path(p, outdir, csv, n) for p, n in zip(logs, result_names(logs, names))]
+    db = db_path if isinstance(db_path, GainDatabase) else GainDatabase.open(db_path)
+    est = Estimator(db, online=online, zones=zones, resample=resample,  # named errors first
+                    channel_map=channel_map)
+    keep = select_outputs(est.names, outputs)
+    compression_filters(compression)
+    job = Job(os.path.abspath(db.path), db.digest, online, zones, resample,
+              None if channel_map is None else os.path.abspath(os.fspath(channel_map)), None if outputs is None else tuple(keep), check_every(every), compression, force,
+              socket.gethostname())
+    _DATABASES.setdefault((job.database, job.digest), db)   # this process and forked workers
     os.makedirs(outdir, exist_ok=True)
-    workers = max(1, min(len(logs), workers or os.cpu_count() or 1))
-    results = []
-    if workers == 1:
-        _init_worker(db_path, online, zones, resample)
-        for i, (lg, out) in enumerate(zip(logs, outs)):
-            results.append(_run_one(lg, out))
+    remove_stale_temporaries(outs)
+    own = None
+    if executor is None:
+        n = max(1, min(len(logs), workers or os.cpu_count() or 1))
+        executor = own = ProcessPoolExecutor(n) if n > 1 else None
+    elif hasattr(executor, "get_executor"):       # a dask.distributed.Client
+        executor = executor.get_executor(pure=False)
+    results: list = [None] * len(logs)
+    try:
+        for done, (i, item) in enumerate(_each_result(executor, job, logs, outs), 1):
+            results[i] = item
             if progress:
-                progress(i + 1, len(logs), results[-1])
-        return results
-    with ProcessPoolExecutor(workers, initializer=_init_worker, initargs=(os.fspath(db_path), online, zones, resample)) as ex:
-        futs = [ex.submit(_run_one, lg, out) for lg, out in zip(logs, outs)]
-        for i, fut in enumerate(futs):
-            results.append(fut.result())
-            if progress:
-                progress(i + 1, len(logs), results[-1])
+                progress(done, len(logs), item)
+    finally:
+        if own is not None:
+            own.shutdown(cancel_futures=True)
     return results
+
+
+def local_dask_cluster(workers: int):
+    """A ``dask.distributed.LocalCluster`` of ``workers`` single-threaded worker processes for
+    :func:`run_many` (no dashboard). Its workers keep Dask's one BLAS thread but not Dask's
+    ``MALLOC_TRIM_THRESHOLD_=65536``: every log frees and allocates arrays of a few MB, and
+    trimming them each time made a log 25-30 % slower (set it likewise on clusters of your own)."""
+    import dask
+    from dask.distributed import LocalCluster
+
+    key = "distributed.nanny.pre-spawn-environ"
+    env = {k: v for k, v in (dask.config.get(key) or {}).items() if k != "MALLOC_TRIM_THRESHOLD_"}
+    with dask.config.set({key: env}):
+        return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
+
+
+def _each_result(executor, job: Job, logs, outs):
+    """(index, LogRun) of every log as it finishes (in this process when ``executor`` is None)."""
+    if executor is None:
+        for i, (lg, out) in enumerate(zip(logs, outs)):
+            yield i, run_log(job, lg, out)
+        return
+    futs = {executor.submit(run_log, job, lg, out): i for i, (lg, out) in enumerate(zip(logs, outs))}
+    order = as_completed(futs) if all(isinstance(f, Future) for f in futs) else list(futs)
+    for fut in order:
+        i = futs[fut]
+        try:
+            item = fut.result()
+        except Exception as e:  # the worker itself was lost (killed process, lost Dask worker)
+            item = LogRun(logs[i], outs[i], None, f"{type(e).__name__}: {e}", FAILED, {})
+        yield i, item
+
+
+# ---- the fleet summary ---------------------------------------------------------------------------
+#: the summary's first columns; then h_hat.<parameter> (last snapshot) and rms.<sensor>
+SUMMARY_COLUMNS = ("log", "results", "engine", "flight_index", "flight_time", "status", "error", *COUNT_KEYS)
+
+
+def summary_rows(results) -> list[dict]:
+    """One row per log of :func:`run_many`'s results (columns: :data:`SUMMARY_COLUMNS`, then
+    ``h_hat.<parameter>`` of the last steady snapshot and ``rms.<sensor>``)."""
+    rows = []
+    for r in results:
+        base = {"log": r.log, "results": "" if r.status == FAILED else r.output, "engine": "",
+                "flight_index": None, "flight_time": "", "status": r.status, "error": r.error or ""}
+        rows.append(base | dict.fromkeys(COUNT_KEYS) | dict(r.row))
+    return rows
+
+
+def write_summary(results, outdir) -> str:
+    """Write the fleet summary of ``results`` (:func:`run_many`) to ``outdir/summary.parquet``
+    (with pandas and pyarrow) or else ``outdir/summary.csv``, atomically; removes the other of
+    the two so no stale summary is left. Returns the path written."""
+    rows = summary_rows(results)
+    cols = list(dict.fromkeys([*SUMMARY_COLUMNS, *(c for r in rows for c in r)]))
+    try:
+        import pandas as pd
+    except ImportError:
+        pd = None
+    if importlib.util.find_spec("pyarrow") is None:     # pandas' Parquet engine
+        pd = None
+    path = os.path.join(os.fspath(outdir), "summary.parquet" if pd is not None else "summary.csv")
+    tmp = os.path.join(os.fspath(outdir), f".{os.path.basename(path)}.{os.getpid()}.tmp")
+    if pd is not None:
+        pd.DataFrame(rows, columns=cols).to_parquet(tmp, index=False)
+    else:
+        with open(tmp, "w", newline="") as fh:
+            w = csv.DictWriter(fh, cols, restval="")
+            w.writeheader()
+            w.writerows({k: "" if v is None else v for k, v in r.items()} for r in rows)
+    os.replace(tmp, path)
+    other = os.path.join(os.fspath(outdir), "summary.csv" if pd is not None else "summary.parquet")
+    if os.path.exists(other):
+        os.remove(other)
+    return path
+
+
+def read_summary(path) -> list[dict]:
+    """The rows of a fleet summary written by :func:`write_summary` (Parquet needs pandas and
+    pyarrow; CSV values are strings, empty where None)."""
+    if os.fspath(path).endswith(".parquet"):
+        import pandas as pd
+        return pd.read_parquet(path).to_dict("records")
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))

@@ -396,3 +396,35 @@ def test_channel_map_errors_against_a_log_name_both_files(tmp_path):
     assert read_log(tmp_path / "log.csv", channel_map=tmp_path / "m.toml").channels["Wf"].tolist() == [1.0, 2.0]
     with pytest.raises(LogError, match="log.csv: column 'Note': non-numeric value 'fine' at sample 0"):
         read_log(tmp_path / "log.csv")
+
+
+def test_pwl_run_reads_a_folder_of_user_files_through_a_channel_map(demo, tmp_path):
+    """pwl run --channel-map: a folder holding a user's CSV and an HDF5 file of another layout
+    (and a gain database, skipped) gives the native log's estimates; the map is in the mode, so
+    a rerun with it skips both logs and a run without it is refused for the HDF5 file."""
+    from pwl.cli import main
+    from pwl.results import Result
+
+    est, h5, ref, res = demo
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    df = pd.DataFrame({"time": ref.time})
+    for k, v in ref.channels.items():
+        df[USER[k][0] if k in USER else k] = USER[k][2](v) if k in USER else v
+    df.to_csv(logs / "user.csv", index=False)
+    with h5py.File(logs / "other.h5", "w") as f:
+        f["time"] = ref.time
+        for c in df.columns[1:]:
+            f[c] = df[c].to_numpy()
+    (tmp_path / "map.toml").write_text("\n".join(user_map() + [
+        f'{k} = {{ column = "{k}", unit = "{ref.units[k]}" }}' for k in ref.channels if k not in USER]) + "\n")
+    import shutil
+    shutil.copy(est.db.path, logs / "db.h5")
+    argv = ["run", est.db.path, str(logs), "-o", str(tmp_path / "out"), "-j", "1",
+            "--channel-map", str(tmp_path / "map.toml")]
+    assert main(argv) == 0
+    for name in ("user", "other"):
+        got = Result.load(tmp_path / "out" / f"{name}.estimates.h5")
+        np.testing.assert_allclose(got.outputs["z_hat"], res.z_hat, rtol=1e-9)
+    assert main(argv) == 0       # resumed: both skipped (same map)
+    assert main(["run", est.db.path, str(logs / "other.h5"), "-o", str(tmp_path / "o2"), "-j", "1"]) == 1

@@ -1,8 +1,10 @@
 """pwl run DB.h5 LOG... -o OUTDIR: estimates for every log, one results file per log."""
-import glob
+import contextlib
 import os
 import sys
 import time
+
+from ..results import COMPRESSIONS, DEFAULT_COMPRESSION
 
 HELP = ("run the piecewise-linear Kalman filter over flight logs (HDF5, CSV, Parquet); exit status 1 "
         "when a log failed or had too few measurement updates")
@@ -16,7 +18,26 @@ def add_arguments(p):
                    help="folder for the results (one LOG.estimates.h5 per log; created if missing)")
     p.add_argument("--csv", action="store_true", help="write CSV results instead of HDF5")
     p.add_argument("-j", "--workers", type=int, default=None,
-                   help="parallel processes (default: the number of cores)")
+                   help="parallel processes on this machine (default: the number of cores)")
+    p.add_argument("--dask", metavar="ADDRESS",
+                   help="run the logs on a Dask cluster: a scheduler address (tcp://host:8786), or "
+                        "local:N for a local cluster of N worker processes; its workers must see the "
+                        "database, the logs and OUTDIR at the same paths (default: a local process pool)")
+    p.add_argument("--force", action="store_true",
+                   help="recompute every log (default: a log whose results file holds results of the same "
+                        "database, mode, log and outputs is skipped, so an interrupted run resumes)")
+    p.add_argument("--outputs", metavar="NAMES",
+                   help="comma-separated outputs to write, e.g. h_hat,z_hat (time and flags are always "
+                        "written; default: all: x_hat,q_hat,h_hat,y_hat,residual,z_hat and h_std online)")
+    p.add_argument("--every", type=int, default=1, metavar="N",
+                   help="write every N-th sample only (the flag counts, residual RMS and steady snapshots "
+                        "still use every sample; default %(default)s)")
+    p.add_argument("--compression", choices=sorted(COMPRESSIONS), default=DEFAULT_COMPRESSION,
+                   help="HDF5 compression of the results: gzip (deflate 4 + shuffle, read by every HDF5 "
+                        "tool), lzf (faster, h5py only) or none (default %(default)s; docs/runtime.md)")
+    p.add_argument("--channel-map", metavar="MAP.toml",
+                   help="read every log through this channel map: the log's column names and units -> "
+                        "the model's channels (docs/runtime.md, Log formats; default: none)")
     p.add_argument("--resample", action="store_true",
                    help="resample logs whose sample interval differs from the database's dt by more "
                         "than 1 %% (linear interpolation; default: such logs are refused)")
@@ -32,11 +53,13 @@ def add_arguments(p):
                         "DB --out ZONED.h5) instead of interpolating it")
 
 
-def expand(paths, with_names: bool = False):
+def expand(paths, with_names: bool = False, any_hdf5: bool = False):
     """Files as given; in folders (walked recursively, e.g. a fleet's ENGINE/flight.h5 tree) every
-    .csv/.parquet and every HDF5 file that is a flight log (other HDF5 files there, e.g. a gain
-    database or results, are skipped with a note). ``with_names``: also return each log's results
-    name (its path relative to the folder given, the file name for files given directly)."""
+    .csv/.tsv/.parquet/.mat and every HDF5 file that is a flight log (other HDF5 files there, e.g.
+    a gain database or results, are skipped with a note; ``any_hdf5``: every HDF5 file but pwl's
+    databases and results, for logs read through a channel map). ``with_names``: also return each
+    log's results name (its path relative to the folder given, the file name for files given
+    directly)."""
     from ..h5io import attr_str
     from ..logs import FORMAT
 
@@ -52,7 +75,7 @@ def expand(paths, with_names: bool = False):
         for folder, dirs, files in os.walk(p):
             dirs.sort()
             found += [os.path.join(folder, f) for f in files
-                      if f.lower().endswith((".h5", ".hdf5", ".csv", ".parquet"))
+                      if f.lower().endswith((".h5", ".hdf5", ".csv", ".tsv", ".parquet", ".mat"))
                       and not f.startswith(".") and ".estimates." not in f]
         for f in sorted(found):
             if f.lower().endswith((".h5", ".hdf5")):
@@ -61,10 +84,11 @@ def expand(paths, with_names: bool = False):
                         fmt = attr_str(h, "format")
                 except OSError:
                     fmt = None
-                if fmt != FORMAT:
+                other_layout = any_hdf5 and not str(fmt or "").startswith("pwl-")
+                if fmt != FORMAT and not other_layout:
                     print(f"pwl run: skipping {f} (not a flight log: format {fmt!r})", file=sys.stderr)
                     continue
-            elif os.path.basename(f) in ("truth.csv", "diagnosis.csv", "summary.csv"):
+            elif os.path.basename(f) in ("truth.csv", "diagnosis.csv", "summary.csv", "summary.parquet"):
                 continue
             out.append(f)
             names.append(os.path.relpath(f, p))
@@ -72,44 +96,71 @@ def expand(paths, with_names: bool = False):
 
 
 def run(args) -> int:
+    from linearize.build import Progress
+
     from ..database import GainDatabase
-    from ..errors import EXIT_FINDINGS, EXIT_INPUT
+    from ..errors import EXIT_FINDINGS, EXIT_INPUT, UsageError
     from ..estimator import Estimator
-    from ..fleet_run import run_many
+    from ..fleet_run import FAILED, SKIPPED, run_many, write_summary
+    from ..results import check_every, select_outputs
 
     from .output import check_output
 
     db = GainDatabase.open(args.database)  # fail early, with the named error, on a bad database
-    Estimator(db, online=args.online, zones=args.zones)  # and on options it cannot serve
+    est = Estimator(db, online=args.online, zones=args.zones,   # and on options it cannot serve
+                    channel_map=args.channel_map)
+    select_outputs(est.names, args.outputs, where="--outputs")
+    check_every(args.every)
+    if args.dask and args.workers:
+        raise UsageError("-j/--workers sizes the local process pool; with --dask the cluster's workers "
+                         "run the logs (use --dask local:N for N local workers)")
     check_output(args.outdir, folder=True)   # and on an output folder it cannot write
-    logs, names = expand(args.logs, with_names=True)
+    logs, names = expand(args.logs, with_names=True, any_hdf5=args.channel_map is not None)
     if not logs:
         print("pwl run: no logs found", file=sys.stderr)
         return EXIT_INPUT
-    t0 = time.perf_counter()
-    short = []
-
-    def progress(done, total, item):
-        log, out, counts, err = item
-        if err:
-            status = f"error: {err}"
-        else:
-            status = f"{describe(counts)} -> {out}"
-            why = too_few(counts, args.min_updated)
-            if why:
-                short.append(log)
-                status += f"\n    TOO FEW ESTIMATES: {why}"
-        print(f"[{done}/{total}] {log}: {status}", file=sys.stderr, flush=True)
-
     if len(set(names)) != len(names):       # files given directly with the same name
         names = None
-    results = run_many(args.database, logs, args.outdir, args.workers, args.csv, progress, online=args.online,
-                       zones=args.zones, names=names, resample=args.resample)
-    failed = [r for r in results if r[3]]
-    n = sum(r[2]["samples"] for r in results if r[2])
+    t0 = time.perf_counter()
+    short = []
+    bar = Progress("logs", len(logs))
+    bar.EVERY_FRACTION = 0.05      # off a terminal: a line per 5 % of the logs (and 5 s)
+
+    def say(msg):
+        print(("\r\x1b[K" if bar.tty else "") + msg, file=sys.stderr, flush=True)
+
+    def progress(done, total, item):
+        if item.error:
+            say(f"{item.log}: error: {item.error}")
+        else:                                   # skipped logs too: a rerun exits as the run did
+            why = too_few(item.counts, args.min_updated)
+            if why:
+                short.append(item.log)
+                say(f"{item.log}: {describe(item.counts)} -> {item.output}\n    TOO FEW ESTIMATES: {why}")
+        bar.update(done)
+
+    with _executor(args, len(logs)) as executor:
+        results = run_many(db, logs, args.outdir, args.workers, args.csv, progress, online=args.online,
+                           zones=args.zones, names=names, resample=args.resample,
+                       channel_map=args.channel_map, executor=executor,
+                           outputs=args.outputs, every=args.every, compression=args.compression,
+                           force=args.force)
+    failed = [r for r in results if r.status == FAILED]
+    skipped = [r for r in results if r.status == SKIPPED]
+    n = sum(r.counts["samples"] for r in results if r.counts and r.status != SKIPPED)
     dt = time.perf_counter() - t0
-    print(f"{len(results) - len(failed)} of {len(results)} logs done, {n} samples in {dt:.2f} s "
+    path = write_summary(results, args.outdir)
+    print(f"{len(results) - len(failed)} of {len(results)} logs done, {n} samples computed in {dt:.2f} s "
           f"({n / dt:,.0f} samples/s including start-up and I/O)")
+    done = [r.counts for r in results if r.counts]
+    if done:
+        print("all logs: " + describe({k: sum(c.get(k, 0) for c in done) for k in done[0]
+                                       if k in dict(FLAG_LABELS) or k == "samples"}))
+    if skipped:
+        print(f"{len(skipped)} log(s) skipped: their results files already hold results of the same "
+              f"database, mode, log and outputs (--force recomputes them)")
+    print(f"fleet summary: {path}" + ("" if path.endswith(".parquet") else
+                                      " (CSV: Parquet needs pandas and pyarrow)"))
     if failed or short:
         print(f"pwl run: {len(failed)} log(s) failed, {len(short)} with too few estimates "
               f"(fewer than {args.min_updated:.0%} of samples updated); see above", file=sys.stderr)
@@ -117,8 +168,49 @@ def run(args) -> int:
     return 0
 
 
+@contextlib.contextmanager
+def _executor(args, n_logs: int):
+    """The executor of ``pwl run``: a Dask client (``--dask``), a process pool whose workers die
+    with this process (``-j`` > 1), or None (one log after the other in this process)."""
+    from ..errors import UsageError
+
+    if args.dask:
+        try:
+            from dask.distributed import Client
+        except ImportError:
+            raise UsageError("--dask needs dask.distributed: pip install 'dask[distributed]'") from None
+        if args.dask.startswith("local:"):
+            from ..fleet_run import local_dask_cluster
+            try:
+                n = int(args.dask[len("local:"):])
+            except ValueError:
+                n = 0
+            if n < 1:
+                raise UsageError(f"--dask {args.dask}: local:N needs a number of workers N >= 1")
+            with local_dask_cluster(n) as cluster, Client(cluster) as c:
+                yield c
+        else:
+            try:
+                client = Client(args.dask, timeout="20s")
+            except OSError as e:
+                raise UsageError(f"--dask {args.dask}: cannot reach the Dask scheduler ({e})") from None
+            with client:
+                yield client
+        return
+    workers = max(1, min(n_logs, args.workers or os.cpu_count() or 1))
+    if workers == 1:
+        yield None
+        return
+    from linearize.build import process_pool
+    pool = process_pool(workers)
+    try:
+        yield pool
+    finally:
+        pool.shutdown(cancel_futures=True)
+
+
 #: flag counts in the order they are printed, with their labels
-FLAG_LABELS = (("updated", "updated"), ("no_update", "without update"),
+FLAG_LABELS = (("updated", "updated"), ("no_update", "without update"), ("partial", "partial update"),
                ("held_input", "input held"), ("implausible", "implausible"), ("misfit", "misfit"),
                ("health_implausible", "implausible health"),
                ("trim_outside", "outside the trim grid"), ("dyn_outside", "outside the dynamics grid"),
