@@ -317,7 +317,7 @@ def local_dask_cluster(workers: int):
 
 
 #: logs per Dask task: a task's round trip through the scheduler (which shares the cores) cost
-#: about a quarter of a 90 s log's time; 8 per task took 2 local workers from 1.67x to 1.8x+ one
+#: about a quarter of a 90 s log's time; 8 per task took 2 local workers from 1.67x to 1.98x one
 DASK_BATCH = 8
 
 
