@@ -62,20 +62,28 @@ def random_points(grid, n: int, seed: int, margin: float = 0.02) -> np.ndarray:
     return lo + margin * span + rng.random((n, grid.ndim)) * (1 - 2 * margin) * span
 
 
+def plant_trims(db: GainDatabase, plant, n: int, seed: int, failed: list):
+    """(p, env, trim) of the plant at n random off-grid points of the trim grid (which spans every
+    scheduling variable), at the database's reference health; points whose trim fails are
+    appended to ``failed`` as (p, message) and skipped (reported, not hidden)."""
+    h = db.tuner["h_ref"]
+    for p in random_points(db.trim_grid, n, seed):
+        env = plant.environment(p)
+        try:
+            t = plant.trim(p, h, env)
+        except Exception as e:  # the plant's own error
+            failed.append((p, str(e)))
+            continue
+        yield p, env, t
+
+
 def steady_state(db: GainDatabase, plant=None, n: int = 20, seed: int = 0, settle_steps: int = 3000):
     """Percent errors (n_points, ny + nz) of the open-loop model at random off-grid points, the
     points (n, np), and any points where the plant's trim failed (skipped)."""
     plant = plant or plant_of(db)
     est = open_loop(db)
-    h = db.tuner["h_ref"]
     pts, errs, failed = [], [], []
-    for p in random_points(db.trim_grid, n, seed):  # the trim grid spans every scheduling variable
-        env = plant.environment(p)
-        try:
-            t = plant.trim(p, h, env)
-        except Exception as e:  # reported, not hidden
-            failed.append((p, str(e)))
-            continue
+    for p, env, t in plant_trims(db, plant, n, seed, failed):
         rep = lambda v: np.repeat(np.asarray(v, dtype=np.float64)[None, :], settle_steps, axis=0)  # noqa: E731
         log = log_of(plant, db, p, env, rep(t["x"]), rep(t["u"]), rep(t["y"]), rep(t["z"]))
         res = est.run(log)
@@ -96,16 +104,9 @@ def scheduled_trims(db: GainDatabase, plant=None, n: int = 200, seed: int = 1):
     from pwl.interp import interpolate
 
     plant = plant or plant_of(db)
-    h = db.tuner["h_ref"]
     chans = [c for c, _, _ in db.schedule]
     pts, errs, failed = [], [], []
-    for p in random_points(db.trim_grid, n, seed):
-        env = plant.environment(p)
-        try:
-            t = plant.trim(p, h, env)
-        except Exception as e:  # reported, not hidden
-            failed.append((p, str(e)))
-            continue
+    for p, env, t in plant_trims(db, plant, n, seed, failed):
         log = log_of(plant, db, p, env, *(np.asarray(t[k], dtype=np.float64)[None, :] for k in "xuyz"))
         S = np.column_stack([log.channels[c] for c in chans])
         th = de = np.ones(1)

@@ -199,7 +199,8 @@ class Estimator:
         flags = out.pop("flags") if "flags" in out else np.empty(n, dtype=np.int64)
         chan_count = np.zeros((2, self._limits.shape[1]), dtype=np.int64)
         if screen(U, Y, S, TH, DE, self._limits, chan_count, flags):
-            U, Y, S, TH, DE = blank_implausible((U, Y, S, TH, DE), self._limits)
+            U, Y, S, TH, DE = (a.copy() for a in (U, Y, S, TH, DE))   # the caller's stay as they are
+            blank_implausible(U, Y, S, TH, DE, self._limits)
         db = self.db
         filter_loop(U, Y, S, TH, DE, *self._model_args(),
                     out["x_hat"], out["q_hat"], out["y_hat"], out["residual"], out["z_hat"],

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .database import GainDatabase
+from .database import OUT_NONE, GainDatabase
 
 
 def node_weights(axes, point):
@@ -62,7 +62,7 @@ class ReferenceFilter:
         self.sensor_out = "K_out" in db.kalman and zones is None and not online
         if self.sensor_out:   # the gain without sensor j, where one exists
             for j in range(db.n("y")):
-                if (db.kalman["out_status"][j] != 2).any():
+                if (db.kalman["out_status"][j] != OUT_NONE).any():
                     mats[f"K_out{j}"] = db.kalman["K_out"][j]
         self.mats = {k: rgi(db.dyn_grid, v) for k, v in mats.items()}
         self.tax = [db.names["p"].index(n) for n in db.trim_grid.names]
@@ -136,7 +136,7 @@ class ReferenceFilter:
             out_j = int(np.flatnonzero(~have)[0]) if (~have).sum() == 1 else -1
             if out_j >= 0 and f"K_out{out_j}" in self.mats:   # every node around pd has that gain
                 w = node_weights([a.values for a in db.dyn_grid.axes], pd)
-                out_ok = bool(np.all(db.kalman["out_status"][out_j].reshape(-1)[w != 0] != 2))
+                out_ok = bool(np.all(db.kalman["out_status"][out_j].reshape(-1)[w != 0] != OUT_NONE))
             else:
                 out_ok = False
             if not have.any() or (not have.all() and not self.online and not out_ok):

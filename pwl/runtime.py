@@ -448,6 +448,7 @@ def filter_loop(U, Y, S, TH, DE,
                   b_ratio, b_learn, online, p_tab, cov, V_pinv, z_gains, z_labels, gate, ko_tab, ko_avail,
                   out_x, out_q, out_yhat, out_res, out_z, out_bias, out_hstd, out_flags, work)
 
+
 @njit(cache=True, nogil=True)
 def workspace(ns, trim_tab, dyn_tab, t_pidx, d_pidx, dims, ex, b_vals, b_pidx, online, cov, ko_tab):
     """The work arrays of :func:`_steps` (its last argument), for ns schedule channels and the
@@ -502,18 +503,24 @@ def workspace(ns, trim_tab, dyn_tab, t_pidx, d_pidx, dims, ex, b_vals, b_pidx, o
     return work
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _screen_value(v, lim, c, chan_count):
+    """Screen one value of column c (see :func:`screen`); its flag bits."""
+    if lim[0, c] <= v <= lim[1, c]:
+        return 0
+    chan_count[0, c] += 1
+    if not np.isfinite(v):
+        return 0
+    chan_count[1, c] += 1
+    return FLAG_IMPLAUSIBLE
+
 
 @njit(cache=True, nogil=True, inline="always")
 def _screen_block(A, k, lim, c0, chan_count):
     """Screen row k of A (n, m) whose columns are c0.. of lim/chan_count (see :func:`screen`)."""
     f = 0
     for j in range(A.shape[1]):
-        v = A[k, j]
-        if not lim[0, c0 + j] <= v <= lim[1, c0 + j]:
-            chan_count[0, c0 + j] += 1
-            if np.isfinite(v):
-                chan_count[1, c0 + j] += 1
-                f = FLAG_IMPLAUSIBLE
+        f |= _screen_value(A[k, j], lim, c0 + j, chan_count)
     return f
 
 
@@ -525,38 +532,43 @@ def screen(U, Y, S, TH, DE, lim, chan_count, flags):
     values (outside its range, NaN or +-Inf) in chan_count[0] and the implausible ones (finite
     but outside) in chan_count[1] ((2, nu+ny+ns+2) int64, accumulated); writes flags (n,):
     FLAG_IMPLAUSIBLE on the samples with an implausible value, else 0. Returns the number of
-    such samples: when there are any, blank them (:func:`blank_implausible`) before the filter.
+    such samples: when there are any, blank them (:func:`blank_implausible`, on copies of the
+    caller's arrays) before the filter.
     A pass of its own: the step loop stays short (a range test per channel in it cost ~10 %)."""
     nu, ny, ns = U.shape[1], Y.shape[1], S.shape[1]
     c = nu + ny + ns
     bad = 0
     for k in range(U.shape[0]):
         f = _screen_block(U, k, lim, 0, chan_count) | _screen_block(Y, k, lim, nu, chan_count) \
-            | _screen_block(S, k, lim, nu + ny, chan_count)
-        for j, v in ((c, TH[k]), (c + 1, DE[k])):
-            if not lim[0, j] <= v <= lim[1, j]:
-                chan_count[0, j] += 1
-                if np.isfinite(v):
-                    chan_count[1, j] += 1
-                    f = FLAG_IMPLAUSIBLE
+            | _screen_block(S, k, lim, nu + ny, chan_count) \
+            | _screen_value(TH[k], lim, c, chan_count) | _screen_value(DE[k], lim, c + 1, chan_count)
         flags[k] = f
         if f:
             bad += 1
     return bad
 
 
-def blank_implausible(arrays, lim):
-    """Copies of U, Y, S, TH, DE (``arrays``) with every finite value outside its column's range
-    in lim (see :func:`screen`) replaced by NaN: the filter then treats it as missing."""
-    out, c = [], 0
-    for a in arrays:
-        m = 1 if a.ndim == 1 else a.shape[1]
-        lo, hi = lim[0, c:c + m], lim[1, c:c + m]
-        if a.ndim == 1:
-            lo, hi = lo[0], hi[0]
-        out.append(np.where(np.isfinite(a) & ((a < lo) | (a > hi)), np.nan, a))
-        c += m
-    return out
+@njit(cache=True, nogil=True, inline="always")
+def _blank_block(A, k, lim, c0):
+    for j in range(A.shape[1]):
+        if not lim[0, c0 + j] <= A[k, j] <= lim[1, c0 + j]:
+            A[k, j] = np.nan
+
+
+@njit(cache=True, nogil=True, _nrt=False)
+def blank_implausible(U, Y, S, TH, DE, lim):
+    """NaN, in place, for every value of U, Y, S, TH, DE outside its column's range in lim (see
+    :func:`screen`): the filter then treats it as missing (NaN and +-Inf already are)."""
+    nu, ny, ns = U.shape[1], Y.shape[1], S.shape[1]
+    c = nu + ny + ns
+    for k in range(U.shape[0]):
+        _blank_block(U, k, lim, 0)
+        _blank_block(Y, k, lim, nu)
+        _blank_block(S, k, lim, nu + ny)
+        if not lim[0, c] <= TH[k] <= lim[1, c]:
+            TH[k] = np.nan
+        if not lim[0, c + 1] <= DE[k] <= lim[1, c + 1]:
+            DE[k] = np.nan
 
 
 @njit(cache=True, nogil=True, _nrt=False)

@@ -25,7 +25,7 @@ from numba.core import types
 from numba.experimental import structref
 
 from .errors import UsageError
-from .runtime import FLAG_DYN_OUTSIDE, FLAG_TRIM_OUTSIDE, _steps, report, screen, workspace
+from .runtime import FLAG_DYN_OUTSIDE, FLAG_TRIM_OUTSIDE, _steps, blank_implausible, report, screen, workspace
 
 
 @structref.register
@@ -56,25 +56,10 @@ def _stream_step(st, row):
     DE[0] = row[ide] / p_std if ide >= 0 else 1.0
     lim, chan_count, q_hat, VT, h_ref, h_lo, h_hi, h_hat = st.post
     if screen(U, Y, S, TH, DE, lim, chan_count, flags):
-        _blank_row(U, lim, 0)
-        _blank_row(Y, lim, U.shape[1])
-        _blank_row(S, lim, U.shape[1] + Y.shape[1])
-        c = U.shape[1] + Y.shape[1] + S.shape[1]
-        if not lim[0, c] <= TH[0] <= lim[1, c]:
-            TH[0] = np.nan
-        if not lim[0, c + 1] <= DE[0] <= lim[1, c + 1]:
-            DE[0] = np.nan
+        blank_implausible(U, Y, S, TH, DE, lim)
     _steps(*((U, Y, S, TH, DE) + st.model + st.outs + (flags, st.work)))
     report(q_hat, VT, h_ref, h_lo, h_hi, h_hat, flags)
     return flags[0]
-
-
-@njit(cache=True, nogil=True)
-def _blank_row(A, lim, c0):
-    """NaN for every value of row 0 of A outside its column's range (columns c0.. of lim)."""
-    for j in range(A.shape[1]):
-        if not lim[0, c0 + j] <= A[0, j] <= lim[1, c0 + j]:
-            A[0, j] = np.nan
 
 
 class Stream:
