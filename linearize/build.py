@@ -577,56 +577,73 @@ def design_filter(pts, names, dg, dyn_status, n_tuners, method, Ph, targets, pro
     donor[ok] = -1
     if errs:
         log(f"kalman: {len(errs)} gains replaced by the nearest good point: {errs}")
-    K_out, out_status = sensor_out_gains([augment(pt["mats"], Vp) for pt in pts], Q, R, dg,
-                                         ok, names["y"], log)
+    K_out, out_status, out_h_ratio = sensor_out_gains([augment(pt["mats"], Vp) for pt in pts], Q, R,
+                                                      Vp, dg, ok, names["y"], log)
     return {"V": V, "q_names": q_names, "metric": metric, "subset_metric": subset_metric,
             "rms_error": {every[t]: float(np.sqrt(m)) for t, m in zip(targets, mse)},
             "K": K, "P": P, "Q": Q, "R": R, "status": np.where(ok, COMPUTED, REPLACED).astype(np.int8),
-            "donor": donor, "K_out": K_out, "out_status": out_status}
+            "donor": donor, "K_out": K_out, "out_status": out_status, "out_h_ratio": out_h_ratio}
 
 
-def sensor_out_gains(aug, Q, R, dg, usable, sensors, log=print):
+def health_std(P, V_pinv, nx: int) -> np.ndarray:
+    """Standard deviation (nh,) of the health estimates h = h_ref + V_pinv q under the augmented
+    error covariance P (na, na) whose tuner block is P[nx:, nx:]."""
+    return np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", V_pinv, P[nx:, nx:], V_pinv), 0.0))
+
+
+def sensor_out_gains(aug, Q, R, V_pinv, dg, usable, sensors, log=print):
     """Steady-state gains for every sensor-out set (all sensors but one), so that the runtime
-    keeps updating from the others when one sensor is missing (a dead thermocouple).
+    keeps updating from the others when one sensor is missing (a dead thermocouple), and how much
+    each health parameter's observability suffers without that sensor.
 
     aug: per dynamics point (flat order) the augmented system (A, C of :func:`augment`); Q (n, na,
-    na), R (n, ny, ny) its noise covariances; usable (n,) bool: points whose full gain was
-    computed (the others take their donor's). Returns K_out (ny, n, na, ny) -- K_out[j] the
-    update gain without sensor j, its column j zero -- and out_status (ny, n) int8: COMPUTED,
-    REPLACED (the nearest point's gain without that sensor) or OUT_NONE (no point can do without
-    sensor j: the tuners are not detectable without it; the runtime then skips the update).
+    na), R (n, ny, ny) its noise covariances; V_pinv (nh, nq); usable (n,) bool: points whose
+    full gain was computed (the others take their donor's). Returns K_out (ny, n, na, ny) -- K_out[j] the update gain without sensor j, its
+    column j zero --, out_status (ny, n) int8: COMPUTED, REPLACED (the nearest point's gain
+    without that sensor) or OUT_NONE (no point can do without sensor j: the tuners are not
+    detectable without it; the runtime then skips the update), and out_h_ratio (ny, n, nh): the
+    steady-state standard deviation of each health estimate without sensor j over its value with
+    all sensors (1: that sensor adds nothing to it; 0 where OUT_NONE): the runtime holds the
+    health estimates while a sensor they depend on is out (``pwl.runtime.HEALTH_HOLD_RATIO``).
     Cost: ny more Riccati solves per point, ny times the size of /kalman/K in the file."""
     ny, n = R.shape[-1], len(aug)
     na = Q.shape[-1]
+    nx = na - V_pinv.shape[1]
     K_out = np.zeros((ny, n, na, ny))
     status = np.full((ny, n), OUT_NONE, dtype=np.int8)
+    ratio = np.zeros((ny, n, V_pinv.shape[0]))
+    s_all = np.zeros((n, V_pinv.shape[0]))
+    for i in np.flatnonzero(usable):
+        s_all[i] = health_std(steady_state_gain(aug[i]["A"], aug[i]["C"], Q[i], R[i])[1], V_pinv, nx)
     for j in range(ny):
         keep = np.arange(ny) != j
         ok = np.zeros(n, bool)
         for i in np.flatnonzero(usable):
             try:
-                K_out[j, i][:, keep], _ = steady_state_gain(aug[i]["A"], aug[i]["C"][keep], Q[i],
-                                                            R[i][np.ix_(keep, keep)])
-                ok[i] = True
+                K_out[j, i][:, keep], Pj = steady_state_gain(aug[i]["A"], aug[i]["C"][keep], Q[i],
+                                                             R[i][np.ix_(keep, keep)])
             except GainError:
-                pass
+                continue
+            ok[i] = True
+            s = health_std(Pj, V_pinv, nx)   # a parameter no tuner reaches has 0 / 0: ratio 1
+            ratio[j, i] = np.where(s_all[i] > 0, s / np.where(s_all[i] > 0, s_all[i], 1.0), 1.0)
         donor = nearest_good(dg, ok)
         if (donor < 0).all():
             log(f"kalman: without sensor {sensors[j]} no point has a detectable gain "
                 "(the runtime skips the update when it is missing)")
             continue
-        K_out[j] = K_out[j][donor]
+        K_out[j], ratio[j] = K_out[j][donor], ratio[j][donor]
         status[j] = np.where(ok, COMPUTED, REPLACED)
         for i in np.flatnonzero(~ok):   # a donor's gain must stabilize this point too
             closed = (np.eye(na) - K_out[j, i] @ aug[i]["C"]) @ aug[i]["A"]
             if not np.abs(np.linalg.eigvals(closed)).max() < 1.0:
-                K_out[j, i] = 0.0
+                K_out[j, i], ratio[j, i] = 0.0, 0.0
                 status[j, i] = OUT_NONE
         if (~ok).any():
             none = int((status[j] == OUT_NONE).sum())
             log(f"kalman: without sensor {sensors[j]}: {int((~ok).sum()) - none} of {n} gains from "
                 f"the nearest point, {none} points without (no update there when it is missing)")
-    return K_out, status
+    return K_out, status, ratio
 
 
 def with_sensor_out_gains(db: GainDatabase, log=print) -> GainDatabase:
@@ -640,10 +657,11 @@ def with_sensor_out_gains(db: GainDatabase, log=print) -> GainDatabase:
     flat = {m: db.dynamics[m].reshape((n,) + db.dynamics[m].shape[dg.ndim:]) for m in "ABCDFGLMN"}
     aug = [augment({m: flat[m][i] for m in flat}, db.tuner["V_pinv"]) for i in range(n)]
     usable = db.kalman_status.reshape(-1) == COMPUTED
-    K_out, st = sensor_out_gains(aug, db.kalman["Q"].reshape(n, na, na), db.kalman["R"].reshape(n, ny, ny),
-                                 dg, usable, db.names["y"], log)
+    K_out, st, ratio = sensor_out_gains(aug, db.kalman["Q"].reshape(n, na, na),
+                                        db.kalman["R"].reshape(n, ny, ny), db.tuner["V_pinv"], dg, usable,
+                                        db.names["y"], log)
     kalman = dict(db.kalman, K_out=K_out.reshape((ny,) + dg.shape + (na, ny)),
-                  out_status=st.reshape((ny,) + dg.shape))
+                  out_status=st.reshape((ny,) + dg.shape), out_h_ratio=ratio.reshape((ny,) + dg.shape + (-1,)))
     return dataclasses.replace(db, kalman=kalman)
 
 
@@ -654,6 +672,7 @@ def kalman_arrays(fd: dict, D: tuple) -> dict:
     ny = fd["K_out"].shape[0]
     out["K_out"] = fd["K_out"].reshape((ny,) + D + fd["K_out"].shape[2:])
     out["out_status"] = fd["out_status"].reshape((ny,) + D)
+    out["out_h_ratio"] = fd["out_h_ratio"].reshape((ny,) + D + fd["out_h_ratio"].shape[2:])
     return out
 
 

@@ -100,7 +100,9 @@ class GainDatabase:
       covariances used, Q D + (na, na), R D + (ny, ny) (noise scales with the operating point);
       ``kalman_status``/``kalman_donor`` as for dynamics; optional (builds since #15) sensor-out
       gains K_out (ny,) + D + (na, ny), K_out[j] the gain without sensor j (column j zero), and
-      out_status int8 (ny,) + D (COMPUTED, REPLACED by the nearest point's, OUT_NONE)
+      out_status int8 (ny,) + D (COMPUTED, REPLACED by the nearest point's, OUT_NONE); and (builds
+      since the health hold) out_h_ratio (ny,) + D + (nh,): the steady-state standard deviation
+      of each health estimate without sensor j over its value with all sensors (0: OUT_NONE)
     - ``log_channels``: every log channel the filter reads (inputs, sensed outputs, schedule and
       theta/delta channels) -> (unit, lo, hi): the plant's unit and plausible range (+-inf when
       unbounded); None for databases built before it was recorded (then units come from
@@ -240,6 +242,8 @@ class GainDatabase:
                 ("kalman/status", "i1", D), ("kalman/donor", "i8", D)]
         if "K_out" in self.kalman:
             out += [("kalman/K_out", "f", (ny,) + D + (na, ny)), ("kalman/out_status", "i1", (ny,) + D)]
+        if "out_h_ratio" in self.kalman:
+            out += [("kalman/out_h_ratio", "f", (ny,) + D + (nh,))]
         if self.correction is not None:
             out += [(f"correction/{k}", "f", (self.n(k), 2)) for k in "xuyz"]
         return out
@@ -346,6 +350,9 @@ class GainDatabase:
                 if np.any(Kj[..., j] != 0.0):
                     raise DatabaseError(f"{self.path}: /kalman/K_out[{j}] (without {name}) uses {name}")
                 sets.append((f"/kalman/K_out[{j}] (without {name})", Kj, st[j] != OUT_NONE))
+            ratio = self.kalman.get("out_h_ratio")
+            if ratio is not None and not np.all(ratio >= 0.0):
+                raise DatabaseError(f"{self.path}: /kalman/out_h_ratio holds negative values")
         for label, K, used in sets:
             rho = np.nan_to_num(self.gain_radius(K), nan=np.inf)
             bad = (rho >= 1.0) & (True if used is None else used)
@@ -504,6 +511,8 @@ class GainDatabase:
         db.kalman = {k: need(f"kalman/{k}")[()] for k in ("K", "P", "Q", "R")}
         if "kalman/K_out" in f:
             db.kalman |= {k: need(f"kalman/{k}")[()] for k in ("K_out", "out_status")}
+        if "kalman/out_h_ratio" in f:
+            db.kalman["out_h_ratio"] = need("kalman/out_h_ratio")[()]
         db.kalman_status, db.kalman_donor = need("kalman/status")[()], need("kalman/donor")[()]
         db.log_channels = None
         if "log_channels" in f:

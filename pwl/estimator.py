@@ -14,7 +14,7 @@ from .database import GainDatabase
 from .grid import Axis, Grid
 from .h5io import atomic_h5
 from .logs import Log, LogError, read_header, read_log, read_rows, resample, sample_interval
-from .runtime import (FLAG_DYN_OUTSIDE, FLAG_NOT_STARTED, FLAG_TRIM_OUTSIDE, MISFIT_SIGMAS, PackedModel,
+from .runtime import (FLAG_DYN_OUTSIDE, FLAG_NOT_STARTED, FLAG_TRIM_OUTSIDE, HEALTH_HOLD_RATIO, MISFIT_SIGMAS, PackedModel,
                       blank_implausible, filter_loop, report, screen)
 from .results import LOG_ATTRS, Result, append_rows, init_result_file
 from .snapshots import SNAPSHOT_OUTPUTS, SnapshotAccumulator, SteadyConfig
@@ -53,11 +53,18 @@ class Estimator:
     ``zones=True``: the gain is picked from the database's k-means zones (``/zones``, built by
     :func:`linearize.zones.database_zones`): the centroid gain of the zone of the nearest
     dynamics node, instead of the interpolated K.
+
+    ``health_hold``: with steady gains and one sensor missing, the update goes on from the others
+    (FLAG_PARTIAL); when that sensor is one the health estimates depend on -- without it some
+    health parameter's steady-state standard deviation is more than ``health_hold`` times its
+    all-sensor value (the database's ``/kalman/out_h_ratio``) -- ``h_hat`` holds its last value
+    (from before the sensor went, or h_ref + V_pinv q0) and the step is flagged FLAG_HEALTH_HELD.
+    The tuners and every other estimate go on. ``float("inf")``: never hold.
     """
 
     def __init__(self, db, q0=None, tune: bool = True, bias: dict | None = None, online: bool = False,
                  health_std: bool = True, zones: bool = False, resample: bool = False,
-                 channel_map=None):
+                 channel_map=None, health_hold: float = HEALTH_HOLD_RATIO):
         self.db = db if isinstance(db, GainDatabase) else GainDatabase.open(db)
         if channel_map is not None and not hasattr(channel_map, "apply"):
             from .channel_map import ChannelMap
@@ -69,7 +76,8 @@ class Estimator:
         if zones:
             from .ekf import ZoneTable
             zt = ZoneTable.from_record(self.db.zones, where=f"{self.db.path}:/zones")
-        self.pm = PackedModel.from_database(self.db, tune=tune, online=online, zones=zt)
+        self.pm = PackedModel.from_database(self.db, tune=tune, online=online, zones=zt,
+                                            health_hold=health_hold)
         na = self.db.n("x") + self.db.n("q")
         self.cov = np.zeros(na * na if online else 0)
         db = self.db
@@ -155,8 +163,10 @@ class Estimator:
             self.state = np.empty(self.pm.state_size())
             self.t_idx = np.zeros(len(self.pm.t_pidx), dtype=np.int64)
             self.d_idx = np.zeros(len(self.pm.d_pidx), dtype=np.int64)
+            self._h_held = np.empty(nh)
         self.state[:] = np.nan
         self.state[nx:nx + nq] = 0.0 if q0 is None else np.asarray(q0, dtype=np.float64)
+        self._h_held[:] = self.db.tuner["h_ref"] + self.db.tuner["V_pinv"] @ self.state[nx:nx + nq]
         self.state[-1] = 0.0
         self.t_idx[:] = 0
         self.d_idx[:] = 0
@@ -205,7 +215,7 @@ class Estimator:
         filter_loop(U, Y, S, TH, DE, *self._model_args(),
                     out["x_hat"], out["q_hat"], out["y_hat"], out["residual"], out["z_hat"],
                     out.get("bias_hat", np.empty((n, 0))), out.get("h_std", np.empty((n, 0))), flags)
-        report(out["q_hat"], self._VT, db.tuner["h_ref"], *self._h_range, out["h_hat"], flags)
+        report(out["q_hat"], self._VT, db.tuner["h_ref"], *self._h_range, out["h_hat"], flags, self._h_held)
         self._count_channels(chan_count)
         t = np.arange(n, dtype=np.float64) * db.dt if time is None else np.asarray(time, dtype=np.float64)
         return Result(t, out, flags, self.names)

@@ -28,6 +28,7 @@ import numpy as np
 from .errors import PwlError
 from .h5io import seal
 from .logs import Log, write_log
+from .results import FLAG_COUNTS
 
 DB_KINDS = ("bitflip", "byte", "truncate", "append", "zero-block", "h5-delete", "h5-reshape",
             "h5-attr", "h5-nonfinite", "sealed-delete", "sealed-reshape", "sealed-attr",
@@ -226,8 +227,7 @@ def outcome(run, clean) -> tuple[str, str]:
     if _equal(res, clean):
         return "equal", ""
     a, b = res.counts(), clean.counts()
-    keys = ("no_update", "partial", "held_input", "implausible", "misfit", "health_implausible", "not_started",
-            "trim_outside", "dyn_outside")
+    keys = tuple(FLAG_COUNTS)
     if any(a[k] != b[k] for k in keys):
         return "flagged", ", ".join(f"{k} {b[k]} -> {a[k]}" for k in keys if a[k] != b[k])
     return "silent", "estimates differ with the same flags"

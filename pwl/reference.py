@@ -29,15 +29,19 @@ class ReferenceFilter:
     ``online``: the time-varying Kalman filter instead (the runtime's online mode): P from the
     interpolated steady-state P at the first sample, then P = A P A^T + Q, K = P C^T (C P C^T +
     R)^-1 by ``np.linalg.solve``, P = (I - K C) P every step. ``zones``: a ZoneTable on the
-    dynamics grid; K is the centroid gain of the zone of the nearest node (per axis argmin)."""
+    dynamics grid; K is the centroid gain of the zone of the nearest node (per axis argmin).
+    ``health_hold``: steady gains, one sensor out: h_hat repeats its last value where a node of
+    non-zero weight has a health standard-deviation ratio above it without that sensor."""
 
-    def __init__(self, db: GainDatabase, bias=None, online: bool = False, zones=None):
+    def __init__(self, db: GainDatabase, bias=None, online: bool = False, zones=None,
+                 health_hold: float = 3.0):
         from scipy.interpolate import RegularGridInterpolator
 
         self.db = db
         self.bias = bias or {}
         self.online = online
         self.zones = zones
+        self.health_hold = health_hold
         ext = db.policy == "extrapolate"
         self.ext = ext
 
@@ -91,6 +95,7 @@ class ReferenceFilter:
                + (("h_std",) if self.online else ())}
         xa = None
         q = np.zeros(nq)
+        h_held = db.tuner["h_ref"].copy()
         for k in range(U.shape[0]):
             th, de = TH[k], DE[k]
             p = np.empty(len(db.schedule))
@@ -137,8 +142,11 @@ class ReferenceFilter:
             if out_j >= 0 and f"K_out{out_j}" in self.mats:   # every node around pd has that gain
                 w = node_weights([a.values for a in db.dyn_grid.axes], pd)
                 out_ok = bool(np.all(db.kalman["out_status"][out_j].reshape(-1)[w != 0] != OUT_NONE))
+                ratio = db.kalman.get("out_h_ratio")
+                hold = out_ok and ratio is not None and bool(
+                    np.any(ratio[out_j].reshape(len(w), -1)[w != 0] > self.health_hold))
             else:
-                out_ok = False
+                out_ok = hold = False
             if not have.any() or (not have.all() and not self.online and not out_ok):
                 K = np.zeros((len(xm), len(r)))          # no update
             elif self.online:
@@ -159,7 +167,9 @@ class ReferenceFilter:
             q = xp[nx:]
             out["x_hat"].append(xa * self.factor("x", th, de))
             out["q_hat"].append(q.copy())
-            out["h_hat"].append(db.tuner["h_ref"] + db.tuner["V_pinv"] @ q)
+            if not hold:
+                h_held = db.tuner["h_ref"] + db.tuner["V_pinv"] @ q
+            out["h_hat"].append(h_held)
             out["y_hat"].append(yh * fy)
             out["residual"].append(np.where(have, Y[k] - yh * fy, np.nan))
             out["z_hat"].append(z * self.factor("z", th, de))

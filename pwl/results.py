@@ -19,8 +19,8 @@ import numpy as np
 from .errors import PwlError, UsageError
 from .h5io import attr_str, atomic_h5, check_seal, read_strings, write_strings
 from .logs import Log
-from .runtime import (FLAG_DYN_OUTSIDE, FLAG_HEALTH, FLAG_HELD_INPUT, FLAG_IMPLAUSIBLE, FLAG_MISFIT,
-                      FLAG_NO_UPDATE, FLAG_NOT_STARTED, FLAG_PARTIAL, FLAG_TRIM_OUTSIDE)
+from .runtime import (FLAG_DYN_OUTSIDE, FLAG_HEALTH, FLAG_HEALTH_HELD, FLAG_HELD_INPUT, FLAG_IMPLAUSIBLE,
+                      FLAG_MISFIT, FLAG_NO_UPDATE, FLAG_NOT_STARTED, FLAG_PARTIAL, FLAG_TRIM_OUTSIDE)
 from .snapshots import Snapshots
 
 FORMAT = "pwl-estimates"
@@ -30,7 +30,7 @@ FORMAT_VERSION = 2
 FLAG_COUNTS = {"no_update": FLAG_NO_UPDATE, "partial": FLAG_PARTIAL, "held_input": FLAG_HELD_INPUT,
                "trim_outside": FLAG_TRIM_OUTSIDE, "dyn_outside": FLAG_DYN_OUTSIDE,
                "not_started": FLAG_NOT_STARTED, "implausible": FLAG_IMPLAUSIBLE,
-               "misfit": FLAG_MISFIT, "health_implausible": FLAG_HEALTH}
+               "misfit": FLAG_MISFIT, "health_implausible": FLAG_HEALTH, "health_held": FLAG_HEALTH_HELD}
 #: every key of :meth:`Result.counts`, in order
 COUNT_KEYS = ("samples", *FLAG_COUNTS, "updated")
 

@@ -50,6 +50,11 @@ FLAG_HEALTH = 128         # a health estimate left the plant's plausible health 
 FLAG_PARTIAL = 256        # some sensors were missing: the update used the others (steady gains:
                           # the stored gain without the one missing sensor; online: the reduced
                           # update); FLAG_NO_UPDATE is set instead when it could not
+FLAG_HEALTH_HELD = 512    # the missing sensor is one the health estimates depend on (without it
+                          # their steady-state standard deviation grows more than HEALTH_HOLD_RATIO
+                          # times): h_hat holds its last value from before (the tuners and the other
+                          # estimates go on, and the health estimates resume when it is back)
+HEALTH_HOLD_RATIO = 3.0
 
 # layout of the per-filter state vector (float64): [x_abs (nx), q (nq), u_last (nu), s_last (ns),
 # theta_last, delta_last, started]
@@ -304,12 +309,15 @@ def _steps(U, Y, S, TH, DE,
         # update below; steady: one sensor out, with its stored gain), else it is skipped
         update = n_miss == 0
         partial = n_miss > 0 and n_miss < ny and (online or (n_miss == 1 and ko_tab.shape[1] > 0))
+        hold = False
         if partial and not online:   # every corner around p has a gain without that sensor
             for c in range(m):
-                if d_wts[c] != 0.0 and ko_avail[d_rows[c] * ny + miss] == 0:
-                    partial = False
+                if d_wts[c] != 0.0:
+                    a = ko_avail[d_rows[c] * ny + miss]
+                    partial &= a != 0
+                    hold |= a == 2
         if partial:
-            flags |= FLAG_PARTIAL
+            flags |= FLAG_PARTIAL | (FLAG_HEALTH_HELD if hold else 0)
         elif not update:
             flags |= FLAG_NO_UPDATE
         if nb > 0:  # the bias tables learn from complete updates only
@@ -572,21 +580,30 @@ def blank_implausible(U, Y, S, TH, DE, lim):
 
 
 @njit(cache=True, nogil=True, _nrt=False)
-def report(q_hat, VT, h_ref, h_lo, h_hi, h_out, flags):
+def report(q_hat, VT, h_ref, h_lo, h_hi, h_out, flags, h_held):
     """The pass after :func:`filter_loop`: health estimates h = h_ref + V_pinv q into h_out (n, nh)
     from q_hat (n, nq), VT = V_pinv^T (nq, nh) C-contiguous (sample by sample in a fixed order,
-    so a one-sample call gives the same bits as a long one; NaN tuners give NaN health);
-    FLAG_HEALTH added to flags (n,) where a health estimate is outside [h_lo, h_hi] (nh,) (it
-    only reports). Allocates nothing and returns nothing (compiled without reference counting,
-    an array returned to a caller with it would be freed twice)."""
+    so a one-sample call gives the same bits as a long one; NaN tuners give NaN health). Where
+    flags (n,) has FLAG_HEALTH_HELD, h_out takes h_held (nh,), the last estimate of a step
+    without it (kept across calls like the filter state). FLAG_HEALTH added where a health
+    estimate is outside [h_lo, h_hi] (nh,) (it only reports). Allocates nothing and returns
+    nothing (compiled without reference counting, an array returned to a caller with it would
+    be freed twice)."""
     nh = h_ref.shape[0]
     for k in range(q_hat.shape[0]):
-        for i in range(nh):
-            h_out[k, i] = h_ref[i]
-        for j in range(q_hat.shape[1]):   # column by column: the loop over i vectorises
-            c = q_hat[k, j]
+        if flags[k] & FLAG_HEALTH_HELD:
             for i in range(nh):
-                h_out[k, i] += VT[j, i] * c
+                h_out[k, i] = h_held[i]
+        else:
+            for i in range(nh):
+                h_out[k, i] = h_ref[i]
+            for j in range(q_hat.shape[1]):   # column by column: the loop over i vectorises
+                c = q_hat[k, j]
+                for i in range(nh):
+                    h_out[k, i] += VT[j, i] * c
+            if np.isfinite(h_out[k, 0]):
+                for i in range(nh):
+                    h_held[i] = h_out[k, i]
         out = False
         for i in range(nh):
             out |= (h_out[k, i] < h_lo[i]) | (h_out[k, i] > h_hi[i])   # no branch here: it costs ~40 %
@@ -655,12 +672,14 @@ class PackedModel:
 
     @classmethod
     def from_database(cls, db: GainDatabase, tune: bool = True, online: bool = False,
-                      zones=None) -> "PackedModel":
+                      zones=None, health_hold: float = HEALTH_HOLD_RATIO) -> "PackedModel":
         """Pack ``db``; ``tune=False`` zeroes the tuner rows of K: the untuned model (states are
         still filtered, the tuners stay at their initial value). ``online``: also pack Q_a, R and
         the steady-state P for the online-covariance filter (needs ``tune``). ``zones``: a
         :class:`pwl.ekf.ZoneTable` on the dynamics grid whose centroid gains are picked per step
-        instead of interpolating K."""
+        instead of interpolating K. ``health_hold``: with one sensor out, the health estimates
+        hold (FLAG_HEALTH_HELD) where some health parameter's standard deviation without it is more
+        than this many times its all-sensor value (``/kalman/out_h_ratio``; inf: never)."""
         if online and not tune:
             raise UsageError("the online-covariance filter estimates the tuners: tune=False is a "
                              "steady-gain option only")
@@ -732,8 +751,11 @@ class PackedModel:
             if not tune:
                 ko[..., nx:, :] = 0.0
             ko_tab = np.ascontiguousarray(np.swapaxes(ko, -1, -2).reshape(dg.size * ny, ny * na))
-            ko_avail = np.ascontiguousarray(
-                (db.kalman["out_status"].reshape(ny, -1) != OUT_NONE).T.reshape(-1), dtype=np.int64)
+            avail = (db.kalman["out_status"].reshape(ny, -1) != OUT_NONE).astype(np.int64)
+            if "out_h_ratio" in db.kalman and tune:   # 2: available, the health estimates hold
+                weak = db.kalman["out_h_ratio"].reshape(ny, dg.size, -1).max(axis=-1) > health_hold
+                avail += avail * weak
+            ko_avail = np.ascontiguousarray(avail.T.reshape(-1))
         return cls(trim_tab, dyn_tab, t_pidx, d_pidx, dims, np.array(pairs, dtype=np.float64), classes,
                    np.array([float(s) for _, _, s in db.schedule]), s_corr, chans,
                    db.correction.theta_channel if db.correction else None,

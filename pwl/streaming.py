@@ -54,11 +54,11 @@ def _stream_step(st, row):
         S[0, j] = row[i_s[j]]
     TH[0] = row[ith] / t_std if ith >= 0 else 1.0
     DE[0] = row[ide] / p_std if ide >= 0 else 1.0
-    lim, chan_count, q_hat, VT, h_ref, h_lo, h_hi, h_hat = st.post
+    lim, chan_count, q_hat, VT, h_ref, h_lo, h_hi, h_hat, h_held = st.post
     if screen(U, Y, S, TH, DE, lim, chan_count, flags):
         blank_implausible(U, Y, S, TH, DE, lim)
     _steps(*((U, Y, S, TH, DE) + st.model + st.outs + (flags, st.work)))
-    report(q_hat, VT, h_ref, h_lo, h_hi, h_hat, flags)
+    report(q_hat, VT, h_ref, h_lo, h_hi, h_hat, flags, h_held)
     return flags[0]
 
 
@@ -97,7 +97,7 @@ class Stream:
                          est._b_vals, est._b_pidx, pm.online, est.cov, pm.ko_tab)
         self._chan_count = np.zeros((2, est._limits.shape[1]), dtype=np.int64)
         post = (est._limits, self._chan_count, self.outputs["q_hat"], est._VT,
-                db.tuner["h_ref"], *est._h_range, self.outputs["h_hat"])
+                db.tuner["h_ref"], *est._h_range, self.outputs["h_hat"], est._h_held)
         self._st = _StreamState(io, tuple(index) + th, model, outs, work, post)
         self._check = db.policy == "error"
         for o, a in self.outputs.items():

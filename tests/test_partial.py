@@ -10,14 +10,14 @@ from linearize.build import with_sensor_out_gains
 from pwl.database import OUT_NONE, DatabaseError, GainDatabase, UnstableGainError
 from pwl.estimator import Estimator
 from pwl.reference import ReferenceFilter
-from pwl.runtime import FLAG_NO_UPDATE, FLAG_PARTIAL, augment
+from pwl.runtime import FLAG_HEALTH_HELD, FLAG_NO_UPDATE, FLAG_PARTIAL, augment
 from test_online import assert_equals_reference, online_db
 from test_runtime import inputs, names_db
 
 
-def riccati_iterated(A, C, Q, R, steps=20000):
-    """Steady-state update gain by iterating the Riccati recursion from P = Q (independent of
-    scipy's DARE solver)."""
+def riccati_iterated(A, C, Q, R, steps=20000, covariance=False):
+    """Steady-state update gain (and with ``covariance`` the a-priori P) by iterating the Riccati
+    recursion from P = Q (independent of scipy's DARE solver)."""
     P = Q.copy()
     for _ in range(steps):
         S = C @ P @ C.T + R
@@ -26,7 +26,8 @@ def riccati_iterated(A, C, Q, R, steps=20000):
         if np.abs(P_new - P).max() <= 1e-15 * np.abs(P).max():
             break
         P = P_new
-    return P @ C.T @ np.linalg.inv(C @ P @ C.T + R)
+    K = P @ C.T @ np.linalg.inv(C @ P @ C.T + R)
+    return (K, P) if covariance else K
 
 
 def test_sensor_out_gains_equal_the_iterated_riccati_recursion():
@@ -143,3 +144,67 @@ def test_points_without_a_sensor_out_gain_skip_the_update_around_them():
     assert near.any() and (~near).any()
     assert np.all(res.flags[near] & FLAG_NO_UPDATE)
     assert np.all(res.flags[~near] & FLAG_PARTIAL)
+
+
+def test_health_std_ratios_equal_the_iterated_riccati_recursion():
+    """/kalman/out_h_ratio: the health estimates' steady-state standard deviation without sensor
+    j over its all-sensor value, from the iterated recursion's covariances."""
+    db = with_sensor_out_gains(make_database(ny=4), log=lambda *a: None)
+    ny, nx, Vp = db.n("y"), db.n("x"), db.tuner["V_pinv"]
+    aug = augment(db.dynamics, Vp)
+
+    def h_std(P):
+        return np.sqrt(np.diag(Vp @ P[nx:, nx:] @ Vp.T))
+    for idx in np.ndindex(*db.dyn_grid.shape):
+        A, C, Q, R = aug["A"][idx], aug["C"][idx], db.kalman["Q"][idx], db.kalman["R"][idx]
+        s_all = h_std(riccati_iterated(A, C, Q, R, covariance=True)[1])
+        for j in range(ny):
+            if db.kalman["out_status"][(j,) + idx] == OUT_NONE:
+                assert np.all(db.kalman["out_h_ratio"][(j,) + idx] == 0.0)
+                continue
+            keep = np.arange(ny) != j
+            P = riccati_iterated(A, C[keep], Q, R[np.ix_(keep, keep)], covariance=True)[1]
+            np.testing.assert_allclose(db.kalman["out_h_ratio"][(j,) + idx], h_std(P) / s_all, rtol=1e-6)
+            assert np.all(db.kalman["out_h_ratio"][(j,) + idx] >= 1.0 - 1e-9)   # a sensor never hurts
+
+
+def test_health_estimates_hold_while_a_sensor_they_need_is_out():
+    db = with_sensor_out_gains(names_db(), log=lambda *a: None)
+    U, Y, S, TH, DE = inputs(db, n=120)
+    Y[40:70, 1] = np.nan
+    held = Estimator(db, health_hold=0.0).run_arrays(U, Y, S, TH, DE)    # every sensor is needed
+    assert_equals_reference(held, ReferenceFilter(db, health_hold=0.0).run(U, Y, S, TH, DE))
+    assert np.all(held.flags[40:70] & FLAG_HEALTH_HELD) and not np.any(np.delete(held.flags, np.s_[40:70]) & FLAG_HEALTH_HELD)
+    np.testing.assert_array_equal(held.h_hat[40:70], np.repeat(held.h_hat[39:40], 30, axis=0))
+    assert np.abs(np.diff(held.q_hat[40:70], axis=0)).max() > 0     # the tuners go on
+    free = Estimator(db, health_hold=np.inf).run_arrays(U, Y, S, TH, DE)
+    assert not np.any(free.flags & FLAG_HEALTH_HELD)
+    np.testing.assert_array_equal(free.q_hat, held.q_hat)           # only the reported health differs
+    np.testing.assert_array_equal(free.h_hat[70:], held.h_hat[70:])  # and it resumes
+
+
+def test_dead_ps30_mid_flight_keeps_health_and_fn_errors_near_the_all_sensor_run():
+    """The degraded engine's demo flight with Ps30 dead from half-way: without Ps30 several
+    health parameters are 10-30x less observable (/kalman/out_h_ratio), and updating them anyway
+    gave a 2.5 point health RMS error; held, it stays within 1.2x of the all-sensor run while the
+    Fn error (the tuners go on) stays within 1.2x too."""
+    from pwl.bench import demo_paths
+    from pwl.logs import Log, read_log
+
+    db_path, logs = demo_paths()
+    log = read_log([p for p in logs if "degraded" in p][0])
+    k0 = len(log) // 2
+    ps30 = np.array(log.channels["Ps30"], dtype=np.float64)
+    ps30[k0:] = np.nan
+    dead = Log(log.time, dict(log.channels, Ps30=ps30), log.units, attrs=log.attrs, path=log.path)
+    est = Estimator(db_path)
+    h_true = np.column_stack([log.truth[h] for h in est.db.names["h"]])
+    after = np.arange(len(log)) >= k0
+
+    def errors(r):
+        e = (r.channel("z_hat", "Fn") - log.truth["Fn"]) / log.truth["Fn"]
+        return np.sqrt(np.mean(e[after] ** 2)), np.sqrt(np.mean((r.h_hat[after] - h_true[after]) ** 2))
+    (fn_all, h_all), part = errors(est.run(log)), est.run(dead)
+    assert np.all(part.flags[after] & FLAG_HEALTH_HELD)
+    fn, h = errors(part)
+    assert fn <= 1.2 * fn_all and h <= 1.2 * h_all

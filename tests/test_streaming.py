@@ -36,11 +36,12 @@ def run_stream(stream, rows):
     return out, flags
 
 
-@pytest.mark.parametrize("mode", ["steady", "online", "sensor-out", "untuned"])
+@pytest.mark.parametrize("mode", ["steady", "online", "sensor-out", "health-held", "untuned"])
 def test_stream_equals_batch_bit_for_bit(mode):
-    db = {"online": online_db, "sensor-out": lambda: with_sensor_out_gains(names_db(), log=lambda *a: None)}.get(
-        mode, names_db)()
-    est = Estimator(db, online=mode == "online", tune=mode != "untuned")
+    out_gains = lambda: with_sensor_out_gains(names_db(), log=lambda *a: None)   # noqa: E731
+    db = {"online": online_db, "sensor-out": out_gains, "health-held": out_gains}.get(mode, names_db)()
+    est = Estimator(db, online=mode == "online", tune=mode != "untuned",
+                    health_hold=0.0 if mode == "health-held" else 3.0)
     U, Y, S, TH, DE = inputs(db, n=120)
     Y[10:20, 0] = np.nan          # a missing sensor
     U[30:35, 0] = np.inf          # a held input

@@ -212,7 +212,7 @@ def _executor(args, n_logs: int):
 #: flag counts in the order they are printed, with their labels
 FLAG_LABELS = (("updated", "updated"), ("no_update", "without update"), ("partial", "partial update"),
                ("held_input", "input held"), ("implausible", "implausible"), ("misfit", "misfit"),
-               ("health_implausible", "implausible health"),
+               ("health_implausible", "implausible health"), ("health_held", "health held"),
                ("trim_outside", "outside the trim grid"), ("dyn_outside", "outside the dynamics grid"),
                ("not_started", "before the first valid sample"))
 
