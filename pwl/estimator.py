@@ -14,8 +14,8 @@ from .database import GainDatabase
 from .grid import Axis, Grid
 from .h5io import atomic_h5
 from .logs import Log, LogError, read_header, read_log, read_rows, resample, sample_interval
-from .runtime import (FLAG_DYN_OUTSIDE, FLAG_NOT_STARTED, FLAG_TRIM_OUTSIDE, HEALTH_HOLD_RATIO, MISFIT_SIGMAS, PackedModel,
-                      blank_implausible, filter_loop, report, screen)
+from .runtime import (FLAG_DYN_OUTSIDE, FLAG_NOT_STARTED, FLAG_TRIM_OUTSIDE, HEALTH_HOLD_RATIO, MISFIT_SIGMAS, Bias,
+                      Filter, Inputs, Outputs, PackedModel, blank_implausible, filter_loop, report, screen)
 from .results import LOG_ATTRS, Result, append_rows, init_result_file
 from .snapshots import SNAPSHOT_OUTPUTS, SnapshotAccumulator, SteadyConfig
 from .errors import PwlError
@@ -94,7 +94,8 @@ class Estimator:
         self.ranges = {c: (lo, hi) for c, (_, lo, hi) in lc.items()}
         self._limits = self._column_limits()
         self._VT = np.ascontiguousarray(self.db.tuner["V_pinv"].T)
-        self._gate = self._misfit_gate()
+        self._model = self.pm.record(self.db.tuner["V_pinv"], self._misfit_gate())
+        self._grids = PackedModel.grids(self.db, self.pm.t_pidx, self.pm.d_pidx)
         hr = db.attrs.get("health_ranges") or {}
         self._h_range = tuple(np.array([hr.get(h, (-np.inf, np.inf))[i] for h in db.names["h"]],
                                        dtype=np.float64) for i in (0, 1))
@@ -212,27 +213,31 @@ class Estimator:
             U, Y, S, TH, DE = (a.copy() for a in (U, Y, S, TH, DE))   # the caller's stay as they are
             blank_implausible(U, Y, S, TH, DE, self._limits)
         db = self.db
-        filter_loop(U, Y, S, TH, DE, *self._model_args(),
-                    out["x_hat"], out["q_hat"], out["y_hat"], out["residual"], out["z_hat"],
-                    out.get("bias_hat", np.empty((n, 0))), out.get("h_std", np.empty((n, 0))), flags)
+        filter_loop(Inputs(U, Y, S, TH, DE), *self._records(), self._outputs(out, flags))
         report(out["q_hat"], self._VT, db.tuner["h_ref"], *self._h_range, out["h_hat"], flags, self._h_held)
         self._count_channels(chan_count)
         t = np.arange(n, dtype=np.float64) * db.dt if time is None else np.asarray(time, dtype=np.float64)
         return Result(t, out, flags, self.names)
 
-    def _model_args(self) -> tuple:
-        """The arguments of :func:`pwl.runtime.filter_loop` between its inputs (U, Y, S, TH, DE)
-        and its outputs: the packed model, the filter state (updated in place), the bias tables."""
-        tg, dg, pm, db, bg = self.db.trim_grid, self.db.dyn_grid, self.pm, self.db, self._b_grid
+    def _bias_record(self) -> Bias:
+        """The kernel's :class:`pwl.runtime.Bias` record of the bias tables (their learn flags as
+        they are now)."""
+        bg = self._b_grid
         learn = np.array([t.enabled for t in self.bias.values()], dtype=np.bool_)
-        return (pm.trim_tab, tg.bp, tg.off, tg.strides, pm.t_pidx,
-                pm.dyn_tab, dg.bp, dg.off, dg.strides, pm.d_pidx, tg.extrapolate,
-                pm.dims, pm.ex, pm.cls, pm.s_scale, pm.s_corr,
-                self.state, self.t_idx, self.d_idx,
-                self._b_chan, self._b_vals, self._b_counts, bg.bp, bg.off, bg.strides, self._b_pidx,
-                self._b_idx, self._b_share, self._b_law, self._b_ratio, learn,
-                pm.online, pm.p_tab, self.cov, db.tuner["V_pinv"], pm.z_gains, pm.z_labels, self._gate,
-                pm.ko_tab, pm.ko_avail)
+        return Bias(self._b_chan, self._b_vals, self._b_counts, bg.bp, bg.off, bg.strides, self._b_pidx,
+                    self._b_idx, self._b_share, self._b_law, self._b_ratio, learn)
+
+    def _records(self) -> tuple:
+        """The kernel's records after its inputs: Model, Grids, Filter (updated in place), Bias."""
+        return self._model, self._grids, Filter(self.state, self.t_idx, self.d_idx, self.cov), self._bias_record()
+
+    @staticmethod
+    def _outputs(out: dict, flags: np.ndarray) -> Outputs:
+        """The kernel's :class:`pwl.runtime.Outputs` record of output buffers ``out`` (name ->
+        (n, k); bias_hat and h_std may be absent) and ``flags`` (n,)."""
+        n = flags.shape[0]
+        return Outputs(out["x_hat"], out["q_hat"], out["y_hat"], out["residual"], out["z_hat"],
+                       out.get("bias_hat", np.empty((n, 0))), out.get("h_std", np.empty((n, 0))), flags)
 
     # ---- what reaches the kernel: plausible values only ----------------------------------------
     def _columns(self) -> list[list[str]]:

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -56,8 +57,6 @@ FLAG_HEALTH_HELD = 512    # the missing sensor is one the health estimates depen
                           # estimates go on, and the health estimates resume when it is back)
 HEALTH_HOLD_RATIO = 3.0
 
-# layout of the per-filter state vector (float64): [x_abs (nx), q (nq), u_last (nu), s_last (ns),
-# theta_last, delta_last, started]
 
 
 @njit(cache=True, nogil=True)
@@ -83,6 +82,158 @@ def correction_factors(ex, theta, delta, fac):
         fac[c] = _power(theta, ex[c, 0]) * _power(delta, ex[c, 1])
 
 
+# ---- the kernel's records: each layout defined here once ---------------------------------------
+class Inputs(NamedTuple):
+    """Log samples of one call, raw units: U (n, nu), Y (n, ny), S (n, ns) schedule channels,
+    TH, DE (n,) theta and delta (ones without parameter correction)."""
+    U: np.ndarray
+    Y: np.ndarray
+    S: np.ndarray
+    TH: np.ndarray
+    DE: np.ndarray
+
+
+class Model(NamedTuple):
+    """The packed model (read only; :meth:`PackedModel.record`)."""
+    trim_tab: np.ndarray   # (trim nodes, nx+nu+ny+nz) trims, corrected units
+    dyn_tab: np.ndarray    # (dyn nodes, block) A_a..K (+ Q_a, R online): :func:`block_layout`
+    dims: np.ndarray       # int64 [nx, nu, ny, nz, nq, nh]
+    ex: np.ndarray         # (nc, 2) the distinct correction exponent pairs; pair 0 is (0, 0)
+    cls: np.ndarray        # int64 (nx+nu+ny+nz+ns,) the pair of every channel, order x u y z s
+    s_scale: np.ndarray    # (ns,) schedule scale
+    s_corr: np.ndarray     # bool (ns,) schedule channel corrected
+    online: bool           # online covariance: dyn_tab holds Q_a and R
+    p_tab: np.ndarray      # (dyn nodes, na*na) steady P (online; else (1, 0))
+    V_pinv: np.ndarray     # (nh, nq)
+    z_gains: np.ndarray    # zone gains, flat column-major (na x ny) per zone, or empty
+    z_labels: np.ndarray   # int64 zone of every dynamics node, or empty
+    gate: np.ndarray       # (ny,) misfit gate, fraction of the prediction
+    ko_tab: np.ndarray     # (dyn nodes * ny, ny * na) sensor-out gains, or (1, 0)
+    ko_avail: np.ndarray   # int64 (dyn nodes * ny,) 0 none, 1 gain, 2 gain and health held
+
+
+class Grids(NamedTuple):
+    """The trim and dynamics grids' locators (:class:`pwl.grid.Grid` bp, off, strides) and the
+    scheduling variables each is on (t_pidx, d_pidx)."""
+    t_bp: np.ndarray
+    t_off: np.ndarray
+    t_str: np.ndarray
+    t_pidx: np.ndarray
+    d_bp: np.ndarray
+    d_off: np.ndarray
+    d_str: np.ndarray
+    d_pidx: np.ndarray
+    extrapolate: bool
+
+
+class Filter(NamedTuple):
+    """The filter state, updated in place across calls: ``state`` (:func:`state_layout`), the
+    grid search hints t_idx, d_idx, and the online covariance cov (na*na,; else empty)."""
+    state: np.ndarray
+    t_idx: np.ndarray
+    d_idx: np.ndarray
+    cov: np.ndarray
+
+
+class Bias(NamedTuple):
+    """Adaptive bias tables (the tuning element), nb = vals.shape[0] (0: none), all on one grid:
+    chan (nb,) sensed channel of each; vals, counts (nb, nodes) corrected units; bp, off,
+    strides, pidx (its axes among the scheduling variables), idx (search hint); share: the grid is
+    the dynamics grid; law, ratio: the table gain (pwl.tables); learn (nb,) bool."""
+    chan: np.ndarray
+    vals: np.ndarray
+    counts: np.ndarray
+    bp: np.ndarray
+    off: np.ndarray
+    strides: np.ndarray
+    pidx: np.ndarray
+    idx: np.ndarray
+    share: bool
+    law: int
+    ratio: float
+    learn: np.ndarray
+
+
+class Outputs(NamedTuple):
+    """Per-sample outputs (n, .) in physical units, and flags (n,) int64."""
+    x_hat: np.ndarray
+    q_hat: np.ndarray
+    y_hat: np.ndarray
+    residual: np.ndarray
+    z_hat: np.ndarray
+    bias_hat: np.ndarray
+    h_std: np.ndarray
+    flags: np.ndarray
+
+
+class Work(NamedTuple):
+    """Scratch arrays of :func:`_steps` (:func:`workspace`)."""
+    tw: np.ndarray       # interpolated trims
+    dw: np.ndarray       # interpolated dynamics block
+    t_frac: np.ndarray
+    d_frac: np.ndarray
+    t_wts: np.ndarray
+    t_rows: np.ndarray
+    d_wts: np.ndarray
+    d_rows: np.ndarray
+    p: np.ndarray        # scheduling variables
+    pt: np.ndarray
+    pd: np.ndarray
+    du: np.ndarray
+    xi: np.ndarray       # augmented state [dx; q]
+    xm: np.ndarray       # its prediction
+    res: np.ndarray      # residuals, corrected units
+    yh: np.ndarray
+    zh: np.ndarray
+    fac: np.ndarray      # correction factor of every exponent pair
+    b_frac: np.ndarray
+    b_wts: np.ndarray
+    b_rows: np.ndarray
+    pb: np.ndarray
+    bias: np.ndarray     # the tables' predictions
+    P: np.ndarray        # online covariance (a view of Filter.cov)
+    Aa: np.ndarray
+    Ca: np.ndarray
+    Qa: np.ndarray
+    Ra: np.ndarray
+    PCt: np.ndarray
+    Sw: np.ndarray
+    Lw: np.ndarray
+    Kw: np.ndarray
+    AP: np.ndarray
+    ko_rows: np.ndarray
+    kw: np.ndarray
+
+
+@njit(cache=True, nogil=True)
+def block_layout(nx, nu, ny, nz, nq):
+    """Offsets of A_a (state rows, row-major), B_a (state rows), C_a, D, F_a, G, K (column-major)
+    and, online, Q_a, R (row-major) in a dynamics block, and its width without and with Q_a, R:
+    (oA, oB, oC, oD, oF, oG, oK, oQ, oR, width, width_online). The tuner rows of A_a, B_a are
+    [0 I], [0] and not stored."""
+    na = nx + nq
+    oA = 0
+    oB = oA + nx * na
+    oC = oB + nx * nu
+    oD = oC + ny * na
+    oF = oD + ny * nu
+    oG = oF + nz * na
+    oK = oG + nz * nu
+    oQ = oK + na * ny
+    oR = oQ + na * na
+    return oA, oB, oC, oD, oF, oG, oK, oQ, oR, oQ, oR + ny * ny
+
+
+@njit(cache=True, nogil=True)
+def state_layout(nx, nq, nu, ns):
+    """Offsets in the filter state vector [x_abs (nx), q (nq), u_last (nu), s_last (ns),
+    theta_last, delta_last, started] and its size: (ox, oq, ou, osl, oth, ode, ost, size)."""
+    ou = nx + nq
+    osl = ou + nu
+    oth = osl + ns
+    return 0, nx, ou, osl, oth, oth + 1, oth + 2, oth + 3
+
+
 @njit(cache=True, nogil=True, inline="always")
 def _add_product(dw, o, rows, v, out):
     """out[:rows] += M v for the column-major matrix M stored at dw[o:] (rows x v.size): one
@@ -105,410 +256,404 @@ def _add_product(dw, o, rows, v, out):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _bias_learn(b_chan, b_vals, b_counts, b_wts, b_rows, bm, b_frac, b_law, b_ratio, b_learn, learn,
-                bias, res, fac, cls, cy, out_bias, k):
-    """Bias tables after the residuals: record the bias (physical units), learn from res."""
-    for c in range(b_chan.shape[0]):
-        i = b_chan[c]
-        out_bias[k, c] = bias[c] * fac[cls[cy + i]]
-        if learn and b_learn[c]:
-            table_update(b_vals[c], b_counts[c], b_wts, b_rows, bm, res[i], b_law, b_ratio, b_frac)
+def _hold(v, state, o):
+    """state[o] = v if v is valid (finite); returns FLAG_HELD_INPUT if it was not."""
+    if np.isfinite(v):
+        state[o] = v
+        return 0
+    return FLAG_HELD_INPUT
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _hold_inputs(io, k, state, ou, osl, oth):
+    """Inputs, schedule channels, theta and delta of sample k into the state, each held at its
+    last valid value when NaN/Inf (theta, delta also when <= 0). Returns the flags."""
+    flags = 0
+    for j in range(io.U.shape[1]):
+        flags |= _hold(io.U[k, j], state, ou + j)
+    for j in range(io.S.shape[1]):
+        flags |= _hold(io.S[k, j], state, osl + j)
+    flags |= _hold(io.TH[k] if io.TH[k] > 0.0 else np.nan, state, oth)
+    flags |= _hold(io.DE[k] if io.DE[k] > 0.0 else np.nan, state, oth + 1)
+    return flags
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _nan_row(a, k):
+    for j in range(a.shape[1]):
+        a[k, j] = np.nan
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _not_started(out, k):
+    """Sample k before the first valid one: every output NaN."""
+    _nan_row(out.x_hat, k)
+    _nan_row(out.q_hat, k)
+    _nan_row(out.y_hat, k)
+    _nan_row(out.residual, k)
+    _nan_row(out.z_hat, k)
+    _nan_row(out.bias_hat, k)
+    _nan_row(out.h_std, k)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _interpolate(model, grids, filt, w, osl, cs):
+    """p_k = scale * channel (corrected where asked); trims into w.tw and the dynamics block into
+    w.dw at p_k, one search per grid and shared corner weights. Returns (flags, number of
+    dynamics corners m, the dynamics grid's out-of-range mask)."""
+    flags = 0
+    for j in range(w.p.shape[0]):
+        v = filt.state[osl + j] * model.s_scale[j]
+        if model.s_corr[j]:
+            v /= w.fac[model.cls[cs + j]]
+        w.p[j] = v
+    for j in range(w.pt.shape[0]):
+        w.pt[j] = w.p[grids.t_pidx[j]]
+    for j in range(w.pd.shape[0]):
+        w.pd[j] = w.p[grids.d_pidx[j]]
+    if locate(grids.t_bp, grids.t_off, w.pt, grids.extrapolate, filt.t_idx, w.t_frac) != 0:
+        flags |= FLAG_TRIM_OUTSIDE
+    d_out = locate(grids.d_bp, grids.d_off, w.pd, grids.extrapolate, filt.d_idx, w.d_frac)
+    if d_out != 0:
+        flags |= FLAG_DYN_OUTSIDE
+    m = corner_weights(filt.t_idx, w.t_frac, grids.t_str, w.t_wts, w.t_rows)
+    interp_rows(model.trim_tab, w.t_wts, w.t_rows, m, w.tw)
+    m = corner_weights(filt.d_idx, w.d_frac, grids.d_str, w.d_wts, w.d_rows)
+    interp_rows(model.dyn_tab, w.d_wts, w.d_rows, m, w.dw)
+    return flags, m, d_out
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _bias_predict(bias, w, m, d_out, extrapolate):
+    """Every bias table's value at p_k into w.bias. Returns (corners bm, out-of-range mask)."""
+    if bias.share:  # the bias tables are on the dynamics grid: its weights serve
+        for j in range(m):
+            w.b_wts[j] = w.d_wts[j]
+            w.b_rows[j] = w.d_rows[j]
+        for j in range(w.d_frac.shape[0]):
+            w.b_frac[j] = w.d_frac[j]
+        bm, b_out = m, d_out
+    else:  # their own grid: one more search, weights shared by all bias tables
+        for j in range(bias.pidx.shape[0]):
+            w.pb[j] = w.p[bias.pidx[j]]
+        b_out = locate(bias.bp, bias.off, w.pb, extrapolate, bias.idx, w.b_frac)
+        bm = corner_weights(bias.idx, w.b_frac, bias.strides, w.b_wts, w.b_rows)
+    for c in range(bias.vals.shape[0]):
+        w.bias[c] = table_predict(bias.vals[c], w.b_wts, w.b_rows, bm)
+    return bm, b_out
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _time_update(model, state, w, oA, oB, nx, nu, nq, ou, tu):
+    """Trim-shift adjustment and time update: xi = [x_abs - x_trim(p_k); q],
+    du = u_k - u_trim(p_k), xm = A_a xi + B_a du (tuners: random walk, A_a rows [0 I])."""
+    na = nx + nq
+    for j in range(nx):
+        w.xi[j] = state[j] - w.tw[j]
+    for j in range(nq):
+        w.xi[nx + j] = state[nx + j]
+    for j in range(nu):
+        w.du[j] = state[ou + j] / w.fac[model.cls[nx + j]] - w.tw[tu + j]
+    for i in range(nx):
+        s = 0.0
+        for j in range(na):
+            s += w.dw[oA + i * na + j] * w.xi[j]
+        for j in range(nu):
+            s += w.dw[oB + i * nu + j] * w.du[j]
+        w.xm[i] = s
+    for i in range(nx, na):
+        w.xm[i] = w.xi[i]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _online_propagate(model, filt, w, first, m, oA, oQ, nx, na):
+    """Online covariance time update P <- A_a P A_a^T + Q_a (the first step: the interpolated
+    steady-state P)."""
+    if first:
+        interp_rows(model.p_tab, w.d_wts, w.d_rows, m, filt.cov)
+        return
+    for i in range(nx):
+        for j in range(na):
+            w.Aa[i, j] = w.dw[oA + i * na + j]
+    for i in range(na):
+        for j in range(na):
+            w.Qa[i, j] = w.dw[oQ + i * na + j]
+    propagate_augmented(w.Aa, w.P, w.Qa, w.AP)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _predict_measurements(io, model, bias, out, w, k, oC, oD, ny, ty, cy):
+    """y_hat = y_trim + C_a xm + D du (+ the bias tables), residuals (corrected units into w.res,
+    physical into the outputs; 0 and NaN for a missing sensor) and the misfit gate. Returns
+    (flags, number of missing sensors, the last missing one)."""
+    flags = 0
+    for i in range(ny):
+        w.yh[i] = w.tw[ty + i]
+    _add_product(w.dw, oC, ny, w.xm, w.yh)
+    _add_product(w.dw, oD, ny, w.du, w.yh)
+    for c in range(bias.vals.shape[0]):
+        w.yh[bias.chan[c]] += w.bias[c]
+    n_miss = 0
+    miss = 0
+    for i in range(ny):
+        s = w.yh[i]
+        fy = w.fac[model.cls[cy + i]]
+        yk = io.Y[k, i]
+        if not np.isfinite(yk):          # NaN or +-Inf: no update from this sensor
+            n_miss += 1
+            miss = i
+            w.res[i] = 0.0
+            out.residual[k, i] = np.nan
+        else:
+            w.res[i] = yk / fy - s
+            r = yk - s * fy
+            out.residual[k, i] = r
+            if abs(r) > model.gate[i] * abs(s * fy):
+                flags |= FLAG_MISFIT
+        out.y_hat[k, i] = s * fy
+    return flags, n_miss, miss
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _partial_flags(model, w, m, n_miss, miss, ny):
+    """A missing sensor: the update goes on from the others (online: any subset; steady: one
+    sensor out, when every corner of non-zero weight has its sensor-out gain), else it is
+    skipped. Returns the flags (FLAG_PARTIAL, + FLAG_HEALTH_HELD, or FLAG_NO_UPDATE; 0 when all
+    sensors are present)."""
+    if n_miss == 0:
+        return 0
+    partial = n_miss < ny and (model.online or (n_miss == 1 and model.ko_tab.shape[1] > 0))
+    hold = False
+    if partial and not model.online:
+        for c in range(m):
+            if w.d_wts[c] != 0.0:
+                a = model.ko_avail[w.d_rows[c] * ny + miss]
+                partial &= a != 0
+                hold |= a == 2
+    if partial:
+        return FLAG_PARTIAL | (FLAG_HEALTH_HELD if hold else 0)
+    return FLAG_NO_UPDATE
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _online_gain(io, w, k, oC, oK, oR, ny, na):
+    """The gain from P (rows of the present sensors only) into the dynamics block's K, and
+    P <- P(k|k). Returns False when C P C^T + R is not positive definite (no update)."""
+    mo = 0
+    for i in range(ny):
+        if np.isfinite(io.Y[k, i]):
+            for j in range(na):
+                w.Ca[mo, j] = w.dw[oC + j * ny + i]
+            mi = 0
+            for j in range(ny):
+                if np.isfinite(io.Y[k, j]):
+                    w.Ra[mo, mi] = w.dw[oR + i * ny + j]
+                    mi += 1
+            mo += 1
+    if not correct(w.P, w.Ca[:mo], w.Ra[:mo, :mo], w.PCt[:, :mo], w.Sw[:mo, :mo], w.Lw[:mo, :mo],
+                   w.Kw[:, :mo]):
+        return False
+    mi = 0
+    for j in range(ny):
+        present = np.isfinite(io.Y[k, j])
+        for i in range(na):
+            w.dw[oK + j * na + i] = w.Kw[i, mi] if present else 0.0
+        if present:
+            mi += 1
+    return True
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _sensor_out_gain(model, w, m, miss, oK, ny, na):
+    """Steady gains, sensor ``miss`` out: its stored gain, interpolated with the dynamics
+    weights, replaces K in the dynamics block."""
+    for c in range(m):
+        w.ko_rows[c] = w.d_rows[c] * ny + miss
+    interp_rows(model.ko_tab, w.d_wts, w.ko_rows, m, w.kw)
+    for i in range(na * ny):
+        w.dw[oK + i] = w.kw[i]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _measurement_update(model, grids, filt, w, update, oK, na, ny):
+    """xi = xm + K res: K interpolated (or chosen above), or the zone gain of the nearest
+    dynamics node; xi = xm without an update."""
+    for i in range(na):
+        w.xi[i] = w.xm[i]
+    if not update:
+        return
+    if model.z_gains.shape[0] > 0:
+        node = 0
+        for j in range(w.d_frac.shape[0]):
+            node += (filt.d_idx[j] + (1 if w.d_frac[j] >= 0.5 else 0)) * grids.d_str[j]
+        _add_product(model.z_gains, model.z_labels[node] * na * ny, na, w.res, w.xi)
+    else:
+        _add_product(w.dw, oK, na, w.res, w.xi)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _outputs(model, state, out, w, k, oF, oG, nx, nq, nz, tz, cz):
+    """z_hat = z_trim + F_a xi + G du; x_abs = x_trim + dx and q into the state; physical
+    units out; online, the health standard deviations from P(k|k)."""
+    for i in range(nz):
+        w.zh[i] = w.tw[tz + i]
+    _add_product(w.dw, oF, nz, w.xi, w.zh)
+    _add_product(w.dw, oG, nz, w.du, w.zh)
+    for i in range(nz):
+        out.z_hat[k, i] = w.zh[i] * w.fac[model.cls[cz + i]]
+    for j in range(nx):
+        xa = w.tw[j] + w.xi[j]
+        state[j] = xa
+        out.x_hat[k, j] = xa * w.fac[model.cls[j]]
+    for j in range(nq):
+        state[nx + j] = w.xi[nx + j]
+        out.q_hat[k, j] = w.xi[nx + j]
+    if model.online and out.h_std.shape[1] > 0:   # sqrt(diag(V_pinv P_qq V_pinv^T))
+        Vp = model.V_pinv
+        for i in range(Vp.shape[0]):
+            v = 0.0
+            for j in range(nq):
+                a = 0.0
+                for c in range(nq):
+                    a += w.P[nx + j, nx + c] * Vp[i, c]
+                v += Vp[i, j] * a
+            out.h_std[k, i] = math.sqrt(max(v, 0.0))
 
 
 @njit(cache=True, nogil=True, fastmath={"reassoc", "contract"}, _nrt=False)
-def _steps(U, Y, S, TH, DE,
-           trim_tab, t_bp, t_off, t_str, t_pidx,
-           dyn_tab, d_bp, d_off, d_str, d_pidx, extrapolate,
-           dims, ex, cls, s_scale, s_corr,
-           state, t_idx, d_idx,
-           b_chan, b_vals, b_counts, b_bp, b_off, b_str, b_pidx, b_idx, b_share, b_law, b_ratio,
-           b_learn, online, p_tab, cov, V_pinv, z_gains, z_labels, gate, ko_tab, ko_avail,
-           out_x, out_q, out_yhat, out_res, out_z, out_bias, out_hstd, out_flags, work):
-    """The step loop of :func:`filter_loop` (same arguments, plus its workspace ``work``).
+def _steps(io, model, grids, filt, bias, out, work):
+    """The step loop of :func:`filter_loop` (same records, plus its workspace ``work``), one
+    helper per line of the equations in the module docstring.
 
     Compiled without numba's reference counting (``_nrt=False``): the inlined helpers take
     arrays, and the atomic increments and decrements of their reference counts were a fifth
     of the time per step (perf; 418 -> 360 ns on the demo flight). It also makes any
     allocation in the loop a compile error."""
-    (tw, dw, t_frac, d_frac, t_wts, t_rows, d_wts, d_rows, p, pt, pd, du, xi, xm, res, yh, zh,
-     fac, b_frac, b_wts, b_rows, pb, bias, P, Aa, Ca, Qa, Ra, PCt, Sw, Lw, Kw, AP, ko_rows, kw) = work
-    nx, nu, ny, nz, nq, nh = dims[0], dims[1], dims[2], dims[3], dims[4], dims[5]
+    nx, nu, ny, nz, nq = model.dims[0], model.dims[1], model.dims[2], model.dims[3], model.dims[4]
     na = nx + nq
-    ns = S.shape[1]
-    n = U.shape[0]
-    # packed offsets (must match PackedModel)
-    oA = 0
-    oB = oA + nx * na        # only the state rows of A_a, B_a: the tuner rows are [0 I], [0]
-    oC = oB + nx * nu
-    oD = oC + ny * na
-    oF = oD + ny * nu
-    oG = oF + nz * na
-    oK = oG + nz * nu
-    oQ = oK + na * ny        # online only: Q_a (na, na) and R (ny, ny), row-major
-    oR = oQ + na * na
-    tx, tu, ty, tz = 0, nx, nx + nu, nx + nu + ny
-    nt = t_pidx.shape[0]
-    nd = d_pidx.shape[0]
-    nb = b_vals.shape[0]
-    nbd = b_pidx.shape[0]
-    bm = 0
-    b_out = 0
-    cx, cu, cy, cz, cs = 0, nx, nx + nu, nx + nu + ny, nx + nu + ny + nz
+    ns = io.S.shape[1]
+    oA, oB, oC, oD, oF, oG, oK, oQ, oR, _, _ = block_layout(nx, nu, ny, nz, nq)
+    ox, oq, ou, osl, oth, ode, ost, _ = state_layout(nx, nq, nu, ns)
+    tu, ty, tz = nx, nx + nu, nx + nu + ny                    # trims: x u y z
+    cy, cz, cs = nx + nu, nx + nu + ny, nx + nu + ny + nz      # channel classes: x u y z s
+    nb = bias.vals.shape[0]
+    state, w = filt.state, work
     th_prev = -1.0
     de_prev = -1.0
-    ox = 0
-    oq = nx
-    ou = nx + nq
-    osl = ou + nu
-    oth = osl + ns
-    ode = oth + 1
-    ost = ode + 1
-    for k in range(n):
-        flags = out_flags[k]   # FLAG_IMPLAUSIBLE from screen(), or 0
-        # ---- hold NaN/Inf inputs / schedule / theta, delta at their last valid values
-        for j in range(nu):
-            v = U[k, j]
-            if not np.isfinite(v):
-                flags |= FLAG_HELD_INPUT
-            else:
-                state[ou + j] = v
-        for j in range(ns):
-            v = S[k, j]
-            if not np.isfinite(v):
-                flags |= FLAG_HELD_INPUT
-            else:
-                state[osl + j] = v
-        if not np.isfinite(TH[k]) or TH[k] <= 0.0:
-            flags |= FLAG_HELD_INPUT
-        else:
-            state[oth] = TH[k]
-        if not np.isfinite(DE[k]) or DE[k] <= 0.0:
-            flags |= FLAG_HELD_INPUT
-        else:
-            state[ode] = DE[k]
+    for k in range(io.U.shape[0]):
+        flags = out.flags[k] | _hold_inputs(io, k, state, ou, osl, oth)   # + FLAG_IMPLAUSIBLE of screen()
         ok = True
         for j in range(ou, ost):
-            if state[j] != state[j]:
-                ok = False
+            ok &= state[j] == state[j]
         if not ok:  # nothing valid yet to predict from
-            flags |= FLAG_NOT_STARTED
-            out_flags[k] = flags
-            for j in range(nx):
-                out_x[k, j] = np.nan
-            for j in range(nq):
-                out_q[k, j] = np.nan
-            for j in range(ny):
-                out_yhat[k, j] = np.nan
-                out_res[k, j] = np.nan
-            for j in range(nz):
-                out_z[k, j] = np.nan
-            for j in range(nb):
-                out_bias[k, j] = np.nan
-            for j in range(out_hstd.shape[1]):
-                out_hstd[k, j] = np.nan
+            out.flags[k] = flags | FLAG_NOT_STARTED
+            _not_started(out, k)
             continue
         if state[oth] != th_prev or state[ode] != de_prev:
-            th_prev = state[oth]
-            de_prev = state[ode]
-            correction_factors(ex, th_prev, de_prev, fac)
-        # ---- scheduling variables and the two grid searches (shared weights)
-        for j in range(ns):
-            v = state[osl + j] * s_scale[j]
-            if s_corr[j]:
-                v /= fac[cls[cs + j]]
-            p[j] = v
-        for j in range(nt):
-            pt[j] = p[t_pidx[j]]
-        for j in range(nd):
-            pd[j] = p[d_pidx[j]]
-        if locate(t_bp, t_off, pt, extrapolate, t_idx, t_frac) != 0:
-            flags |= FLAG_TRIM_OUTSIDE
-        d_out = locate(d_bp, d_off, pd, extrapolate, d_idx, d_frac)
-        if d_out != 0:
-            flags |= FLAG_DYN_OUTSIDE
-        m = corner_weights(t_idx, t_frac, t_str, t_wts, t_rows)
-        interp_rows(trim_tab, t_wts, t_rows, m, tw)
-        m = corner_weights(d_idx, d_frac, d_str, d_wts, d_rows)
-        interp_rows(dyn_tab, d_wts, d_rows, m, dw)
-        if nb > 0 and b_share:  # the bias tables are on the dynamics grid: its weights serve
-            b_out = d_out
-            bm = m
-            for j in range(m):
-                b_wts[j] = d_wts[j]
-                b_rows[j] = d_rows[j]
-            for j in range(nd):
-                b_frac[j] = d_frac[j]
-        elif nb > 0:  # their own grid: one more search, weights shared by all bias tables
-            for j in range(nbd):
-                pb[j] = p[b_pidx[j]]
-            b_out = locate(b_bp, b_off, pb, extrapolate, b_idx, b_frac)
-            bm = corner_weights(b_idx, b_frac, b_str, b_wts, b_rows)
+            th_prev, de_prev = state[oth], state[ode]
+            correction_factors(model.ex, th_prev, de_prev, w.fac)
+        f, m, d_out = _interpolate(model, grids, filt, w, osl, cs)
+        flags |= f
+        bm, b_out = 0, 0
         if nb > 0:
-            for c in range(nb):
-                bias[c] = table_predict(b_vals[c], b_wts, b_rows, bm)
-        # ---- start at trim on the first valid sample
+            bm, b_out = _bias_predict(bias, w, m, d_out, grids.extrapolate)
         first = state[ost] == 0.0
-        if first:
+        if first:  # start at trim on the first valid sample
             for j in range(nx):
-                state[ox + j] = tw[tx + j]
+                state[ox + j] = w.tw[j]
             state[ost] = 1.0
-        if online:  # covariance time update (the first step starts from the steady-state P)
-            if first:
-                interp_rows(p_tab, d_wts, d_rows, m, cov)
-            else:
-                for i in range(nx):
-                    for j in range(na):
-                        Aa[i, j] = dw[oA + i * na + j]
-                for i in range(na):
-                    for j in range(na):
-                        Qa[i, j] = dw[oQ + i * na + j]
-                propagate_augmented(Aa, P, Qa, AP)
-        # ---- trim-shift adjustment and time update
-        for j in range(nx):
-            xi[j] = state[ox + j] - tw[tx + j]
-        for j in range(nq):
-            xi[nx + j] = state[oq + j]
-        for j in range(nu):
-            du[j] = state[ou + j] / fac[cls[cu + j]] - tw[tu + j]
-        for i in range(nx):
-            s = 0.0
-            for j in range(na):
-                s += dw[oA + i * na + j] * xi[j]
-            for j in range(nu):
-                s += dw[oB + i * nu + j] * du[j]
-            xm[i] = s
-        for i in range(nx, na):  # tuners: random walk, A_a rows [0 I]
-            xm[i] = xi[i]
-        # ---- predicted measurements and residuals (corrected units); C, D, K, F, G are stored
-        # column by column, so every product is a few contiguous axpys (vectorised)
-        for i in range(ny):
-            yh[i] = tw[ty + i]
-        _add_product(dw, oC, ny, xm, yh)
-        _add_product(dw, oD, ny, du, yh)
-        for c in range(nb):
-            yh[b_chan[c]] += bias[c]
-        n_miss = 0
-        miss = 0
-        for i in range(ny):
-            s = yh[i]
-            fy = fac[cls[cy + i]]
-            yk = Y[k, i]
-            if not np.isfinite(yk):          # NaN or +-Inf: no update from this sensor
-                n_miss += 1
-                miss = i
-                res[i] = 0.0
-                out_res[k, i] = np.nan
-            else:
-                res[i] = yk / fy - s
-                r = yk - s * fy
-                out_res[k, i] = r
-                if abs(r) > gate[i] * abs(s * fy):
-                    flags |= FLAG_MISFIT
-            out_yhat[k, i] = s * fy
-        # a missing sensor: the update goes on from the others (online: any subset, the reduced
-        # update below; steady: one sensor out, with its stored gain), else it is skipped
-        update = n_miss == 0
-        partial = n_miss > 0 and n_miss < ny and (online or (n_miss == 1 and ko_tab.shape[1] > 0))
-        hold = False
-        if partial and not online:   # every corner around p has a gain without that sensor
-            for c in range(m):
-                if d_wts[c] != 0.0:
-                    a = ko_avail[d_rows[c] * ny + miss]
-                    partial &= a != 0
-                    hold |= a == 2
-        if partial:
-            flags |= FLAG_PARTIAL | (FLAG_HEALTH_HELD if hold else 0)
-        elif not update:
-            flags |= FLAG_NO_UPDATE
+        if model.online:
+            _online_propagate(model, filt, w, first, m, oA, oQ, nx, na)
+        _time_update(model, state, w, oA, oB, nx, nu, nq, ou, tu)
+        f, n_miss, miss = _predict_measurements(io, model, bias, out, w, k, oC, oD, ny, ty, cy)
+        part = _partial_flags(model, w, m, n_miss, miss, ny)
+        flags |= f | part
         if nb > 0:  # the bias tables learn from complete updates only
-            _bias_learn(b_chan, b_vals, b_counts, b_wts, b_rows, bm, b_frac, b_law, b_ratio, b_learn,
-                        update and b_out == 0, bias, res, fac, cls, cy, out_bias, k)
-        update = update or partial
-        # ---- measurement update
-        if online and update:  # the gain from P replaces the interpolated one
-            mo = 0                 # rows of the present sensors only
-            for i in range(ny):
-                if np.isfinite(Y[k, i]):
-                    for j in range(na):
-                        Ca[mo, j] = dw[oC + j * ny + i]
-                    mi = 0
-                    for j in range(ny):
-                        if np.isfinite(Y[k, j]):
-                            Ra[mo, mi] = dw[oR + i * ny + j]
-                            mi += 1
-                    mo += 1
-            if correct(P, Ca[:mo], Ra[:mo, :mo], PCt[:, :mo], Sw[:mo, :mo], Lw[:mo, :mo], Kw[:, :mo]):
-                mi = 0
-                for j in range(ny):
-                    present = np.isfinite(Y[k, j])
-                    for i in range(na):
-                        dw[oK + j * na + i] = Kw[i, mi] if present else 0.0
-                    if present:
-                        mi += 1
-            else:  # C P C^T + R not positive definite: prediction only
+            for c in range(nb):
+                out.bias_hat[k, c] = w.bias[c] * w.fac[model.cls[cy + bias.chan[c]]]
+                if n_miss == 0 and b_out == 0 and bias.learn[c]:
+                    table_update(bias.vals[c], bias.counts[c], w.b_wts, w.b_rows, bm,
+                                 w.res[bias.chan[c]], bias.law, bias.ratio, w.b_frac)
+        update = n_miss == 0 or (part & FLAG_PARTIAL) != 0
+        if model.online and update:  # the gain from P replaces the interpolated one
+            if not _online_gain(io, w, k, oC, oK, oR, ny, na):
                 update = False
                 flags = (flags & ~FLAG_PARTIAL) | FLAG_NO_UPDATE
-        elif partial:  # steady gains: the stored gain without the missing sensor
-            for c in range(m):
-                ko_rows[c] = d_rows[c] * ny + miss
-            interp_rows(ko_tab, d_wts, ko_rows, m, kw)
-            for i in range(na * ny):
-                dw[oK + i] = kw[i]
-        for i in range(na):
-            xi[i] = xm[i]
-        if update and z_gains.shape[0] > 0:  # the zone gain of the nearest dynamics node
-            node = 0
-            for j in range(nd):
-                node += (d_idx[j] + (1 if d_frac[j] >= 0.5 else 0)) * d_str[j]
-            _add_product(z_gains, z_labels[node] * na * ny, na, res, xi)
-        elif update:
-            _add_product(dw, oK, na, res, xi)
-        # ---- outputs
-        for i in range(nz):
-            zh[i] = tw[tz + i]
-        _add_product(dw, oF, nz, xi, zh)
-        _add_product(dw, oG, nz, du, zh)
-        for i in range(nz):
-            out_z[k, i] = zh[i] * fac[cls[cz + i]]
-        for j in range(nx):
-            xa = tw[tx + j] + xi[j]
-            state[ox + j] = xa
-            out_x[k, j] = xa * fac[cls[cx + j]]
-        for j in range(nq):
-            state[oq + j] = xi[nx + j]
-            out_q[k, j] = xi[nx + j]
-        if online and out_hstd.shape[1] > 0:  # health standard deviations from P(k|k)
-            for i in range(nh):
-                v = 0.0
-                for j in range(nq):
-                    a = 0.0
-                    for c in range(nq):
-                        a += P[nx + j, nx + c] * V_pinv[i, c]
-                    v += V_pinv[i, j] * a
-                out_hstd[k, i] = math.sqrt(max(v, 0.0))
-        out_flags[k] = flags
-    return n
+        elif n_miss > 0 and update:  # steady gains: the stored gain without the missing sensor
+            _sensor_out_gain(model, w, m, miss, oK, ny, na)
+        _measurement_update(model, grids, filt, w, update, oK, na, ny)
+        _outputs(model, state, out, w, k, oF, oG, nx, nq, nz, tz, cz)
+        out.flags[k] = flags
+    return io.U.shape[0]
 
 
 @njit(cache=True, nogil=True)
-def filter_loop(U, Y, S, TH, DE,
-                trim_tab, t_bp, t_off, t_str, t_pidx,
-                dyn_tab, d_bp, d_off, d_str, d_pidx, extrapolate,
-                dims, ex, cls, s_scale, s_corr,
-                state, t_idx, d_idx,
-                b_chan, b_vals, b_counts, b_bp, b_off, b_str, b_pidx, b_idx, b_share, b_law, b_ratio,
-                b_learn, online, p_tab, cov, V_pinv, z_gains, z_labels, gate, ko_tab, ko_avail,
-                out_x, out_q, out_yhat, out_res, out_z, out_bias, out_hstd, out_flags):
-    """Run the filter over n samples; state and search hints are updated in place (chunkable).
+def filter_loop(io, model, grids, filt, bias, out):
+    """Run the filter over the n samples of ``io`` (:class:`Inputs`); ``filt`` and the bias
+    tables are updated in place (chunkable); outputs into ``out`` (:class:`Outputs`), whose
+    flags hold the flags of :func:`screen` on entry. Returns n.
 
-    U (n, nu), Y (n, ny), S (n, ns) raw log channels; TH, DE (n,) theta and delta (ones when the
-    database has no correction). trim_tab (trim nodes, nx+nu+ny+nz), dyn_tab (dyn nodes, block)
-    packed as in :class:`PackedModel`. dims = [nx, nu, ny, nz, nq, nh]. Parameter correction:
-    ex (nc, 2) the distinct exponent pairs, cls (nx+nu+ny+nz+ns,) int64 the pair of every channel
-    in the order x, u, y, z, schedule (pair 0 is (0, 0)). Outputs (n, .) in
-    physical (uncorrected) units: x_hat, q_hat, y_hat (a priori), residual y - y_hat,
-    z_hat (a posteriori); out_flags (n,) int64. Returns the number of samples processed.
+    Records: :class:`Model` the packed database, :class:`Grids` the trim and dynamics grids,
+    :class:`Filter` the filter state, :class:`Bias` the adaptive bias tables, each field's shape
+    and units in its definition.
 
-    Bias tables (the tuning element; nb = b_vals.shape[0], 0 for none): one adaptive table per
-    biased sensed channel, all on one grid (b_bp, b_off, b_str; b_pidx its axes among the
-    scheduling variables; b_idx the search hint; b_share: the grid is the dynamics grid, whose
-    search and weights are reused), values (nb, nodes) and visit counts in
-    corrected units. b_chan (nb,) the sensed channel of each table. Each step the
-    tables' prediction is added to the predicted measurement (the bias is pre-positioned at the
-    operating point) and, when the point is inside the table grid and the step has a
-    measurement update, every table with b_learn[c] learns from its channel's innovation with the
-    steady-state table gain (law b_law, noise ratio b_ratio; pwl.tables). out_bias (n, nb) in
-    physical units.
+    Bias tables (the tuning element; nb = bias.vals.shape[0], 0 for none): each step their
+    prediction is added to the predicted measurement (the bias is pre-positioned at the
+    operating point) and, when the point is inside the table grid and the step has a complete
+    measurement update, every table with learn[c] learns from its channel's innovation with the
+    steady-state table gain (law, ratio; pwl.tables). bias_hat (n, nb) in physical units.
 
-    Online covariance (``online`` True; the full Kalman filter of the piecewise-linear model, an
-    EKF whose Jacobians are the interpolated matrices): dyn_tab blocks also hold Q_a and R
-    (row-major, after K); cov (na*na,) is the error covariance P (a posteriori between steps,
-    kept in place like ``state``), started from the interpolated steady-state P of p_tab (dyn nodes,
-    na*na) on the first valid sample. Each step P <- A_a P A_a^T + Q_a, then the gain and P(k|k)
-    from :func:`pwl.covariance.correct` replace the interpolated gain; out_hstd (n, nh) gets the
-    standard deviation of every health estimate, sqrt(diag(V_pinv P_qq V_pinv^T)) with P_qq the
-    tuner block of P(k|k) (V_pinv (nh, nq)), unless it has no columns. Not online: p_tab, cov,
-    V_pinv and out_hstd are unused (may be empty).
+    Online covariance (``model.online``; the full Kalman filter of the piecewise-linear model, an
+    EKF whose Jacobians are the interpolated matrices): the dynamics blocks also hold Q_a and R;
+    filt.cov (na*na,) is the error covariance P (a posteriori between steps), started from the
+    interpolated steady-state P of model.p_tab on the first valid sample. Each step P <- A_a P
+    A_a^T + Q_a, then the gain and P(k|k) from :func:`pwl.covariance.correct` replace the
+    interpolated gain; h_std (n, nh) gets sqrt(diag(V_pinv P_qq V_pinv^T)) unless it has no
+    columns.
 
     Missing values: NaN or +-Inf (and theta, delta <= 0) inputs, schedule and theta/delta values
-    are held at their last valid value, a missing sensor value skips the update. Values outside
-    their plausible range were turned into NaN before, by :func:`screen`; out_flags holds its
-    flags on entry (FLAG_IMPLAUSIBLE, or 0) and the step's flags are added to them.
+    are held at their last valid value (FLAG_HELD_INPUT). Values outside their plausible range
+    were turned into NaN before, by :func:`screen`.
 
     Missing sensors (NaN/Inf in Y; FLAG_PARTIAL when the update goes on without them): online,
     the update uses the rows of the present sensors (any subset); steady gains, one missing sensor
-    j takes the gain without it, interpolated with the dynamics weights from ko_tab (dyn nodes *
-    ny, ny * na): row node * ny + j, column-major like K (column j zero), when every corner node
-    of non-zero weight has one (ko_avail (dyn nodes * ny,) int64, same rows, non-zero);
-    else (two or more missing, no sensor-out gains: ko_tab (1, 0), zone gains) no update
-    (FLAG_NO_UPDATE). Bias tables learn from complete updates only.
+    j takes the gain without it, interpolated with the dynamics weights from model.ko_tab (row
+    node * ny + j, column-major like K, column j zero), when every corner node of non-zero weight
+    has one (model.ko_avail non-zero; 2: and the health estimates hold, FLAG_HEALTH_HELD, see
+    :func:`report`); else (two or more missing, no sensor-out gains, zone gains) no update
+    (FLAG_NO_UPDATE).
 
-    Zone gains (z_gains non-empty; :mod:`linearize.zones` database zones): the gain is picked,
-    not interpolated: the zone label z_labels[node] of the dynamics node nearest to the operating
-    point (per axis the closer breakpoint) selects the centroid gain z_gains[label * na * ny:]
-    (column-major, na x ny); dyn_tab blocks then hold no K.
+    Zone gains (model.z_gains non-empty; :mod:`linearize.zones` database zones): the gain is
+    picked, not interpolated: the zone label of the dynamics node nearest to the operating point
+    (per axis the closer breakpoint) selects the centroid gain (column-major, na x ny); the
+    dynamics blocks then hold no K.
     """
-    work = workspace(S.shape[1], trim_tab, dyn_tab, t_pidx, d_pidx, dims, ex, b_vals, b_pidx, online,
-                     cov, ko_tab)
-    return _steps(U, Y, S, TH, DE, trim_tab, t_bp, t_off, t_str, t_pidx, dyn_tab, d_bp, d_off,
-                  d_str, d_pidx, extrapolate, dims, ex, cls, s_scale, s_corr, state, t_idx, d_idx,
-                  b_chan, b_vals, b_counts, b_bp, b_off, b_str, b_pidx, b_idx, b_share, b_law,
-                  b_ratio, b_learn, online, p_tab, cov, V_pinv, z_gains, z_labels, gate, ko_tab, ko_avail,
-                  out_x, out_q, out_yhat, out_res, out_z, out_bias, out_hstd, out_flags, work)
+    return _steps(io, model, grids, filt, bias, out, workspace(io.S.shape[1], model, grids, filt, bias))
 
 
 @njit(cache=True, nogil=True)
-def workspace(ns, trim_tab, dyn_tab, t_pidx, d_pidx, dims, ex, b_vals, b_pidx, online, cov, ko_tab):
-    """The work arrays of :func:`_steps` (its last argument), for ns schedule channels and the
-    packed model's sizes; cov the online covariance (P is a view of it). Allocated once per
+def workspace(ns, model, grids, filt, bias):
+    """The :class:`Work` arrays of :func:`_steps` for ns schedule channels. Allocated once per
     :func:`filter_loop` call, or once per :class:`pwl.streaming.Stream`."""
-    nx, nu, ny, nz, nq = dims[0], dims[1], dims[2], dims[3], dims[4]
+    nx, nu, ny, nz, nq = model.dims[0], model.dims[1], model.dims[2], model.dims[3], model.dims[4]
     na = nx + nq
-    nt = t_pidx.shape[0]
-    nd = d_pidx.shape[0]
-    nb = b_vals.shape[0]
-    nbd = b_pidx.shape[0]
-    no = na if online else 0    # online-covariance work arrays (empty otherwise)
-    mo = ny if online else 0
-    tw = np.empty(trim_tab.shape[1])
-    dw = np.empty(dyn_tab.shape[1])
-    t_frac = np.empty(nt)
-    d_frac = np.empty(nd)
-    t_wts = np.empty(1 << nt)
-    t_rows = np.empty(1 << nt, dtype=np.int64)
-    d_wts = np.empty(1 << nd)
-    d_rows = np.empty(1 << nd, dtype=np.int64)
-    p = np.empty(ns)
-    pt = np.empty(nt)
-    pd = np.empty(nd)
-    du = np.empty(nu)
-    xi = np.empty(na)
-    xm = np.empty(na)
-    res = np.empty(ny)
-    yh = np.empty(ny)
-    zh = np.empty(nz)
-    fac = np.ones(ex.shape[0])
-    b_frac = np.empty(nbd)
-    b_wts = np.empty(1 << nbd)
-    b_rows = np.empty(1 << nbd, dtype=np.int64)
-    pb = np.empty(nbd)
-    bias = np.zeros(max(nb, 1))
-    P = cov[:no * no].reshape((no, no))
-    ro = nx if online else 0
-    Aa = np.empty((ro, no))     # the state rows of A_a; its tuner rows [0 I] are implied
-    Ca = np.empty((mo, no))
-    Qa = np.empty((no, no))
-    Ra = np.empty((mo, mo))
-    PCt = np.empty((no, mo))
-    Sw = np.empty((mo, mo))
-    Lw = np.empty((mo, mo))
-    Kw = np.empty((no, mo))
-    AP = np.empty((ro, no))
-    ko_rows = np.empty(1 << nd, dtype=np.int64)
-    kw = np.empty(ko_tab.shape[1])
-    work = (tw, dw, t_frac, d_frac, t_wts, t_rows, d_wts, d_rows, p, pt, pd, du, xi, xm, res, yh, zh,
-            fac, b_frac, b_wts, b_rows, pb, bias, P, Aa, Ca, Qa, Ra, PCt, Sw, Lw, Kw, AP, ko_rows, kw)
-    return work
+    nt = grids.t_pidx.shape[0]
+    nd = grids.d_pidx.shape[0]
+    nb = bias.vals.shape[0]
+    nbd = bias.pidx.shape[0]
+    no = na if model.online else 0    # online-covariance work arrays (empty otherwise)
+    mo = ny if model.online else 0
+    ro = nx if model.online else 0
+    return Work(np.empty(model.trim_tab.shape[1]), np.empty(model.dyn_tab.shape[1]),
+                np.empty(nt), np.empty(nd), np.empty(1 << nt), np.empty(1 << nt, dtype=np.int64),
+                np.empty(1 << nd), np.empty(1 << nd, dtype=np.int64),
+                np.empty(ns), np.empty(nt), np.empty(nd), np.empty(nu), np.empty(na), np.empty(na),
+                np.empty(ny), np.empty(ny), np.empty(nz), np.ones(model.ex.shape[0]),
+                np.empty(nbd), np.empty(1 << nbd), np.empty(1 << nbd, dtype=np.int64), np.empty(nbd),
+                np.zeros(max(nb, 1)), filt.cov[:no * no].reshape((no, no)),
+                np.empty((ro, no)), np.empty((mo, no)), np.empty((no, no)), np.empty((mo, mo)),
+                np.empty((no, mo)), np.empty((mo, mo)), np.empty((mo, mo)), np.empty((no, mo)),
+                np.empty((ro, no)), np.empty(1 << nd, dtype=np.int64), np.empty(model.ko_tab.shape[1]))
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -763,5 +908,26 @@ class PackedModel:
                    z_gains, z_labels, ko_tab, ko_avail)
 
     def state_size(self) -> int:
-        nx, nu, ny, nz, nq, nh = self.dims
-        return int(nx + nq + nu + len(self.schedule_channels) + 3)
+        """Length of the filter state vector (:func:`state_layout`)."""
+        nx, nu, ny, nz, nq, nh = (int(d) for d in self.dims)
+        return int(state_layout(nx, nq, nu, len(self.schedule_channels))[-1])
+
+    def record(self, V_pinv: np.ndarray, gate: np.ndarray) -> Model:
+        """The kernel's :class:`Model` record: these tables, with V_pinv (nh, nq) and the misfit
+        gate (ny,)."""
+        nx, nu, ny, nz, nq, nh = (int(d) for d in self.dims)
+        lay = block_layout(nx, nu, ny, nz, nq)
+        width = lay[-1] if self.online else lay[-2] - (nx + nq) * ny * (self.z_gains.shape[0] > 0)
+        if self.dyn_tab.shape[1] != width:   # zone gains: no K in the block
+            raise DatabaseError(f"packed dynamics block of {self.dyn_tab.shape[1]} values, the kernel's "
+                                f"layout has {width}: PackedModel and block_layout disagree")
+        return Model(self.trim_tab, self.dyn_tab, self.dims, self.ex, self.cls, self.s_scale, self.s_corr,
+                     bool(self.online), self.p_tab, np.ascontiguousarray(V_pinv), self.z_gains,
+                     self.z_labels, np.ascontiguousarray(gate, dtype=np.float64), self.ko_tab, self.ko_avail)
+
+    @staticmethod
+    def grids(db: GainDatabase, t_pidx: np.ndarray, d_pidx: np.ndarray) -> Grids:
+        """The kernel's :class:`Grids` record of ``db``."""
+        tg, dg = db.trim_grid, db.dyn_grid
+        return Grids(tg.bp, tg.off, tg.strides, t_pidx, dg.bp, dg.off, dg.strides, d_pidx,
+                     bool(tg.extrapolate))

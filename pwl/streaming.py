@@ -25,7 +25,8 @@ from numba.core import types
 from numba.experimental import structref
 
 from .errors import UsageError
-from .runtime import FLAG_DYN_OUTSIDE, FLAG_TRIM_OUTSIDE, _steps, blank_implausible, report, screen, workspace
+from .runtime import (FLAG_DYN_OUTSIDE, FLAG_TRIM_OUTSIDE, Inputs, _steps, blank_implausible, report, screen,
+                      workspace)
 
 
 @structref.register
@@ -38,13 +39,16 @@ class _StreamState(structref.StructRefProxy):
     """Everything one step needs, in one numba structure (one argument to unbox per call)."""
 
 
-structref.define_proxy(_StreamState, _StreamType, ["io", "cols", "model", "outs", "work", "post"])
+structref.define_proxy(_StreamState, _StreamType, ["io", "cols", "records", "work", "post"])
 
 
 @njit(cache=True, nogil=True)
 def _stream_step(st, row):
     """One sample ``row`` (the stream's channels) through screen, the step loop and report."""
-    U, Y, S, TH, DE, flags = st.io
+    io = st.io
+    U, Y, S, TH, DE = io
+    model, grids, filt, bias, out = st.records
+    flags = out.flags
     iu, iy, i_s, ith, ide, t_std, p_std = st.cols
     for j in range(iu.shape[0]):
         U[0, j] = row[iu[j]]
@@ -57,7 +61,7 @@ def _stream_step(st, row):
     lim, chan_count, q_hat, VT, h_ref, h_lo, h_hi, h_hat, h_held = st.post
     if screen(U, Y, S, TH, DE, lim, chan_count, flags):
         blank_implausible(U, Y, S, TH, DE, lim)
-    _steps(*((U, Y, S, TH, DE) + st.model + st.outs + (flags, st.work)))
+    _steps(io, model, grids, filt, bias, out, st.work)
     report(q_hat, VT, h_ref, h_lo, h_hi, h_hat, flags, h_held)
     return flags[0]
 
@@ -87,18 +91,14 @@ class Stream:
         th = (at[pm.theta_channel], at[pm.delta_channel], corr.T_std, corr.P_std) if pm.theta_channel \
             else (-1, -1, 1.0, 1.0)
         nu, ny, ns = (len(i) for i in index)
-        io = (np.zeros((1, nu)), np.zeros((1, ny)), np.zeros((1, ns)), np.ones(1), np.ones(1),
-              np.zeros(1, dtype=np.int64))
+        io = Inputs(np.zeros((1, nu)), np.zeros((1, ny)), np.zeros((1, ns)), np.ones(1), np.ones(1))
         self.outputs = {o: np.zeros((1, len(est.names[o]))) for o in est.names}
-        outs = tuple(self.outputs[o] for o in ("x_hat", "q_hat", "y_hat", "residual", "z_hat")) + (
-            self.outputs.get("bias_hat", np.zeros((1, 0))), self.outputs.get("h_std", np.zeros((1, 0))))
-        model = est._model_args()
-        work = workspace(ns, pm.trim_tab, pm.dyn_tab, pm.t_pidx, pm.d_pidx, pm.dims, pm.ex,
-                         est._b_vals, est._b_pidx, pm.online, est.cov, pm.ko_tab)
+        records = est._records() + (est._outputs(self.outputs, np.zeros(1, dtype=np.int64)),)
+        work = workspace(ns, *records[:4])
         self._chan_count = np.zeros((2, est._limits.shape[1]), dtype=np.int64)
         post = (est._limits, self._chan_count, self.outputs["q_hat"], est._VT,
                 db.tuner["h_ref"], *est._h_range, self.outputs["h_hat"], est._h_held)
-        self._st = _StreamState(io, tuple(index) + th, model, outs, work, post)
+        self._st = _StreamState(io, tuple(index) + th, records, work, post)
         self._check = db.policy == "error"
         for o, a in self.outputs.items():
             setattr(self, o, a[0])
