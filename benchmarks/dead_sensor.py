@@ -19,8 +19,8 @@ import numpy as np
 
 
 def main(argv=None) -> int:
-    from pwl.bench import demo_paths
     from pwl.cli.demo import errors
+    from pwl.demo_data import demo_paths
     from pwl.estimator import Estimator
     from pwl.logs import Log, read_log
     from pwl.runtime import FLAG_HEALTH_HELD, FLAG_PARTIAL

@@ -2,7 +2,7 @@
 
     python benchmarks/fuzz.py --db-mutants 10000 --log-mutants 1000 --seed 0 [--workers 2]
 
-Mutants come from :mod:`pwl.fuzz` (the shipped demo database, sealed; the first 1500 samples of
+Mutants come from :mod:`pwl.bench.fuzz` (the shipped demo database, sealed; the first 1500 samples of
 the new-engine demo flight). Each runs in a worker process under a watchdog: a mutant that does
 not finish within ``--timeout`` seconds is a ``hang`` (the worker is killed and replaced). Prints
 the counts by mutant kind and outcome and every failure (traceback, hang, silent); exit status 1
@@ -23,8 +23,8 @@ import numpy as np
 
 
 def _worker(conn, tmp):
-    from pwl import fuzz
-    from pwl.bench import demo_paths
+    from pwl.bench import fuzz
+    from pwl.demo_data import demo_paths
     from pwl.estimator import Estimator
     from pwl.logs import Log, read_log
 
@@ -78,8 +78,8 @@ class Runner:
 
 
 def main(argv=None) -> int:
-    from pwl import fuzz
-    from pwl.bench import demo_paths
+    from pwl.bench import fuzz
+    from pwl.demo_data import demo_paths
     from pwl.database import GainDatabase
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)

@@ -21,7 +21,8 @@ import numpy as np
 def main(argv=None):
     import pandas as pd
 
-    from pwl.bench import _best_of as best_of, demo_paths
+    from pwl.bench.speed import _best_of as best_of
+    from pwl.demo_data import demo_paths
     from pwl.logs import Log, read_log, write_csv
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -7,8 +7,8 @@ The observer's system, with the sensor pole a (per sample) and the model input d
 
 Only the ratio sigma_w^2 / sigma_v^2 matters for the gain (the paper tunes with 1/80 and 1/30).
 K_inf comes from the project's one gain formula :func:`linearize.kalman.steady_state_gain`
-(update form: x[k|k] = x[k|k-1] + K e[k]), as the builder's gains do; the pwl runtime
-(:mod:`pwl.bias`) only receives the numbers.
+(update form: x[k|k] = x[k|k-1] + K e[k]), as the builder's gains do; the observer
+(:mod:`experiments.bias_observer`) only receives the numbers.
 """
 from __future__ import annotations
 

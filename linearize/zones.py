@@ -15,7 +15,7 @@ Offline, for a discrete-time plant x[k+1] = f(x, u) + w, y = h(x) + v:
    paper's zones are the clusters of the samples) or the zone whose centroid is nearest to the
    steady gain computed at the node itself (``label="gain"``: exact at the nodes, one DARE each).
 
-The result is a :class:`pwl.ekf.ZoneTable` (online form) whose ``record()`` is the ``/zones``
+The result is a :class:`pwl.zones.ZoneTable` (online form) whose ``record()`` is the ``/zones``
 record of a gain database. :func:`database_zones` clusters the per-node gains of an existing
 :class:`pwl.database.GainDatabase` instead (the lookup grid is then the dynamics grid).
 """
@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pwl.database import DatabaseError
-from pwl.ekf import ZoneTable
+from pwl.zones import ZoneTable
 from pwl.grid import Axis, Grid
 
 from .kalman import GainError, steady_state_gain

@@ -110,7 +110,7 @@ class Chen2020:
     """The plant object: names, parameters, kernels, covariances, operating box, simulation.
 
     Satisfies the discrete-time part of the Plant protocol (``evaluate``); ``functions`` holds
-    the numba kernels used by :mod:`pwl.ekf` (SEKF and EKF loops) and the zone builder.
+    the numba kernels used by :mod:`experiments.ekf` (SEKF and EKF loops) and the zone builder.
     """
 
     name = "chen2020"

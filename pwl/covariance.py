@@ -15,7 +15,8 @@ demo database), so the online filter is not slower than it needs to be.
 P is the a-priori covariance before ``correct`` and the a-posteriori one after it; ``K`` is the
 update ("filter") gain of :mod:`linearize.kalman`, x(k|k) = x(k|k-1) + K (y - y_hat).
 
-:func:`pwl.ekf.ekf_loop` writes ``correct`` and a dense time update out in its loop (see there why).
+:func:`experiments.ekf.ekf_loop` (the seed-001 baseline) writes ``correct`` and a dense time update
+out in its loop (see there why).
 """
 from __future__ import annotations
 

@@ -74,7 +74,7 @@ class Estimator:
         self.resample = resample
         zt = None
         if zones:
-            from .ekf import ZoneTable
+            from .zones import ZoneTable
             zt = ZoneTable.from_record(self.db.zones, where=f"{self.db.path}:/zones")
         self.pm = PackedModel.from_database(self.db, tune=tune, online=online, zones=zt,
                                             health_hold=health_hold)

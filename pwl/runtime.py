@@ -821,7 +821,7 @@ class PackedModel:
         """Pack ``db``; ``tune=False`` zeroes the tuner rows of K: the untuned model (states are
         still filtered, the tuners stay at their initial value). ``online``: also pack Q_a, R and
         the steady-state P for the online-covariance filter (needs ``tune``). ``zones``: a
-        :class:`pwl.ekf.ZoneTable` on the dynamics grid whose centroid gains are picked per step
+        :class:`pwl.zones.ZoneTable` on the dynamics grid whose centroid gains are picked per step
         instead of interpolating K. ``health_hold``: with one sensor out, the health estimates
         hold (FLAG_HEALTH_HELD) where some health parameter's standard deviation without it is more
         than this many times its all-sensor value (``/kalman/out_h_ratio``; inf: never)."""

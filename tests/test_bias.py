@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
+from experiments.bias_observer import FLAG_F1, FLAG_F3, FLAG_F4, FLAG_F5, BiasObserver, FreezeRules, rms
 from linearize.bias import observer_gain, observer_matrices
 from models import diesel
-from pwl.bias import FLAG_F1, FLAG_F3, FLAG_F4, FLAG_F5, BiasObserver, FreezeRules, rms
 from pwl.grid import Axis, Grid
 from pwl.tables import AdaptiveTable
 

@@ -3,8 +3,8 @@ the degraded engine's health estimates right despite a sensor mismatch. The refe
 simulation's truth (and the same flight without the mismatch)."""
 import numpy as np
 
-from pwl.bench import demo_paths
-from pwl.cli.biastable import experiment
+from experiments.biastable import experiment
+from pwl.demo_data import demo_paths
 
 
 def test_bias_table_restores_health_estimates():

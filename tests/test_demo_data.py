@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 from scipy.linalg import solve_discrete_are
 
-from pwl.bench import demo_paths
+from pwl.bench.reference import ReferenceFilter
 from pwl.database import GainDatabase
+from pwl.demo_data import demo_paths
 from pwl.estimator import Estimator
 from pwl.logs import read_log
-from pwl.reference import ReferenceFilter
 from pwl.runtime import augment
 
 

@@ -1,14 +1,14 @@
 """Seeded mutation test (#14): damaged databases and logs end in a named error, an equal result or
-a flag; never a traceback or silently different estimates (pwl.fuzz; benchmarks/fuzz.py runs
+a flag; never a traceback or silently different estimates (pwl.bench.fuzz; benchmarks/fuzz.py runs
 10,000 + 1,000 mutants with a hang watchdog)."""
 import collections
 
 import numpy as np
 import pytest
 
-from pwl import fuzz
-from pwl.bench import demo_paths
+from pwl.bench import fuzz
 from pwl.database import GainDatabase
+from pwl.demo_data import demo_paths
 from pwl.estimator import Estimator
 from pwl.logs import Log, read_log
 

@@ -142,7 +142,7 @@ def test_database_without_ranges_still_runs():
 
 
 def test_misfit_flags_where_the_model_cannot_explain_a_sensor():
-    from pwl.bench import demo_paths
+    from pwl.demo_data import demo_paths
     from pwl.logs import read_log
     from pwl.runtime import FLAG_MISFIT, MISFIT_SIGMAS
     db_path, logs = demo_paths()

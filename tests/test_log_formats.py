@@ -10,8 +10,8 @@ import pandas as pd
 import pytest
 import scipy.io
 
-from pwl.bench import demo_paths
 from pwl.channel_map import ChannelMap, ChannelMapError
+from pwl.demo_data import demo_paths
 from pwl.estimator import Estimator
 from pwl.logs import Log, LogError, read_log, write_log
 

@@ -5,8 +5,8 @@ import pytest
 
 from conftest import make_database
 from linearize.kalman import steady_state_gain
+from pwl.bench.reference import ReferenceFilter
 from pwl.estimator import Estimator
-from pwl.reference import ReferenceFilter
 from pwl.runtime import FLAG_PARTIAL
 from test_runtime import inputs
 
@@ -147,7 +147,7 @@ def test_pwl_run_online_writes_the_online_estimates(tmp_path):
 def test_zone_gains_picked_per_step_equal_reference(kw):
     """Estimator(zones=True) picks the centroid gain of the nearest dynamics node's zone."""
     from linearize.zones import database_zones
-    from pwl.ekf import ZoneTable
+    from pwl.zones import ZoneTable
 
     db = online_db(dyn_shape=(4, 5), spread=0.1, **kw)    # zone gains that stabilize every node
     db.zones, _ = database_zones(db, k=3, seed=0)

@@ -7,9 +7,9 @@ import pytest
 
 from conftest import make_database
 from linearize.build import with_sensor_out_gains
+from pwl.bench.reference import ReferenceFilter
 from pwl.database import OUT_NONE, DatabaseError, GainDatabase, UnstableGainError
 from pwl.estimator import Estimator
-from pwl.reference import ReferenceFilter
 from pwl.runtime import FLAG_HEALTH_HELD, FLAG_NO_UPDATE, FLAG_PARTIAL, augment
 from test_online import assert_equals_reference, online_db
 from test_runtime import inputs, names_db
@@ -106,7 +106,7 @@ def test_dead_t48_from_takeoff_keeps_fn_error_within_1_5x_of_all_sensors():
     """The demo flight of the degraded engine with T48 dead from the start: the Fn error against
     the simulation's truth stays within 1.5x of the all-sensor run (open-loop, as before the
     sensor-out gains, it was 18x)."""
-    from pwl.bench import demo_paths
+    from pwl.demo_data import demo_paths
     from pwl.logs import Log, read_log
 
     db_path, logs = demo_paths()
@@ -188,7 +188,7 @@ def test_dead_ps30_mid_flight_keeps_health_and_fn_errors_near_the_all_sensor_run
     health parameters are 10-30x less observable (/kalman/out_h_ratio), and updating them anyway
     gave a 2.5 point health RMS error; held, it stays within 1.2x of the all-sensor run while the
     Fn error (the tuners go on) stays within 1.2x too."""
-    from pwl.bench import demo_paths
+    from pwl.demo_data import demo_paths
     from pwl.logs import Log, read_log
 
     db_path, logs = demo_paths()

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from conftest import make_database
+from pwl.bench.reference import ReferenceFilter
 from pwl.estimator import EnvelopeError, Estimator
 from pwl.logs import Log, LogError, write_log
-from pwl.reference import ReferenceFilter
 from pwl.runtime import FLAG_DYN_OUTSIDE, FLAG_HELD_INPUT, FLAG_NO_UPDATE, FLAG_TRIM_OUTSIDE
 
 

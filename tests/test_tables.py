@@ -338,7 +338,7 @@ def test_record_roundtrip_and_database_tables(tmp_path, synthetic_db):
 
 # ---- the experiments' claims (small seeded runs) ---------------------------------------------
 def test_seed000_reliable_reference_and_bias_step():
-    from pwl.experiments_tables import seed000_run
+    from experiments.tables import seed000_run
 
     for seed in (0, 1):
         for law in ("exact", "paper"):
@@ -354,7 +354,7 @@ def test_seed000_reliable_reference_and_bias_step():
 
 
 def test_seed000_noise_larger_ratio_lower_steady_error():
-    from pwl.experiments_tables import seed000_run
+    from experiments.tables import seed000_run
 
     for amp in (0.2, 0.4):
         for law in ("exact", "paper"):
@@ -365,7 +365,7 @@ def test_seed000_noise_larger_ratio_lower_steady_error():
 
 def test_battery_correlated_beats_local_at_never_excited_temperatures():
     from models import battery
-    from pwl.experiments_tables import battery_compare
+    from experiments.tables import battery_compare
 
     sim = battery.simulate(n=3000, seed=1)
     r = battery_compare(sim)
@@ -376,7 +376,7 @@ def test_battery_correlated_beats_local_at_never_excited_temperatures():
 
 
 def test_bench_tables_agrees_with_numpy_reference():
-    from pwl.bench_tables import bench_tables
+    from pwl.bench.tables import bench_tables
 
     res = bench_tables(n_points=20_000, n_ref=300)
     assert res["max_abs_diff_vs_numpy"] < 1e-12 and res["counts_equal"]

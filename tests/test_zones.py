@@ -10,10 +10,11 @@ from numba import njit
 from scipy.cluster.vq import kmeans2
 from scipy.linalg import solve_discrete_are
 
+from experiments.ekf import run_ekf, run_sekf
 from linearize import zones as Z
 from models.chen2020 import Chen2020, PlantFunctions, f as chen_f, jac_f as chen_jac_f
 from pwl.database import GainDatabase
-from pwl.ekf import ZoneError, ZoneTable, run_ekf, run_sekf
+from pwl.zones import ZoneError, ZoneTable
 
 from conftest import make_database
 
@@ -147,7 +148,7 @@ def test_sekf_matches_numpy_reference(plant, build):
 
 def test_sekf_lookup_on_a_subset_of_coordinates(plant, build):
     """coords: a 1-D lookup over x1 only (index 1 of (u, x1, x2)) vs the numpy reference."""
-    from pwl.ekf import lookup_coords
+    from experiments.ekf import lookup_coords
     from pwl.grid import Axis, Grid
 
     x1 = np.linspace(-20, 20, 81)
@@ -221,7 +222,7 @@ def test_lookup_vs_bruteforce(plant, build):
     ref = brute_nearest_node_labels(table, pts)
     np.testing.assert_array_equal(table.zone_of(pts), ref)
     # search path (pwl.grid.locate) on the same grid
-    from pwl.ekf import zone_many
+    from pwl.zones import zone_many
     out = np.empty(len(pts), np.int64)
     n_out = zone_many(*table.kernel_args(force_search=True), np.ascontiguousarray(pts), out)
     np.testing.assert_array_equal(out, ref)
@@ -372,7 +373,7 @@ def test_monte_carlo_sekf_close_to_ekf(plant, build):
 def test_compare_database_zone_vs_interpolated(tmp_path):
     """The turbofan comparison's code path on the synthetic database: with the interpolated
     estimator's own outputs as truth, the interpolated error is 0 and the zone one is not."""
-    from pwl.cli.zones import compare_database
+    from experiments.zones import compare_database
     from pwl.estimator import Estimator
     from pwl.logs import Log, write_log
 

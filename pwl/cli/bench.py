@@ -8,10 +8,10 @@ HELP = ("benchmarks (interp: interpolation kernel vs RegularGridInterpolator; ru
 
 #: target -> "module:function" returning a dict of figures
 TARGETS = {
-    "interp": "pwl.bench:bench_interp",
-    "run": "pwl.bench:bench_run",
-    "table": "pwl.bench_tables:bench_tables",
-    "stream": "pwl.bench:bench_stream",
+    "interp": "pwl.bench.speed:bench_interp",
+    "run": "pwl.bench.speed:bench_run",
+    "table": "pwl.bench.tables:bench_tables",
+    "stream": "pwl.bench.speed:bench_stream",
 }
 
 

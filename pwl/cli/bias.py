@@ -6,9 +6,11 @@ pass on (all nodes start at zero). Errors against the simulated truth are report
 pass: the biased fast model, the slow delayed sensor, the observer without table and the observer
 with table (plus, for reference, with the freezing rules off). A plot like the paper's Fig. 14/17
 is written when matplotlib is installed.
+
+The experiment is :func:`experiments.bias.drive_cycle` (imported inside ``run``); this module
+parses the arguments, prints and plots.
 """
 import math
-import time
 
 import numpy as np
 
@@ -47,80 +49,38 @@ def add_arguments(p):
                    help="freeze hold time after a rule fires, s (default %(default)g)")
     p.add_argument("--freeze", nargs="*", default=[], metavar="NAME=VALUE",
                    help="freezing thresholds, e.g. model_rate=1.5 sensor_min=0.12 (names of "
-                        "pwl.bias.FreezeRules: e_rate model_rate sensor_rate sensor_min sensor_max "
+                        "experiments.bias_observer.FreezeRules: e_rate model_rate sensor_rate sensor_min sensor_max "
                         "estimate_min estimate_max; inf switches a rule off; default: FreezeRules' own)")
     p.add_argument("--plot", default="pwl_bias.png",
                    help="PNG file for the plot, needs matplotlib (default %(default)s; '' for none)")
 
 
 def run(args) -> int:
-    from linearize.bias import observer_gain
-    from models import diesel
-
-    from ..bias import BiasObserver, FreezeRules, rms
-    from ..grid import Axis, Grid
-    from ..tables import AdaptiveTable
+    from experiments.bias import drive_cycle
 
     if args.passes < 2:
         raise ValueError("--passes must be >= 2 (the table learns on the first pass)")
     check_output(args.plot)
-    dt = 0.02
-    if args.case == "nedc":
-        one = diesel.nedc(dt=dt, urban_cycles=args.urban_cycles)
-    else:
-        one = diesel.injection_steps(dt=dt)
-    traj = one.repeat(args.passes)
-    engine = diesel.EngineParams(model_scale=args.model_scale)
-    sensor = diesel.SensorParams(a=args.sensor_a, tau=args.sensor_tau, spike_rate=args.spikes)
-    t0 = time.perf_counter()
-    sim = diesel.simulate(traj, seed=args.seed, engine=engine, sensor=sensor)
-    t_sim = time.perf_counter() - t0
-    a_obs, tau_obs = 0.96, 0.4
-    K, _ = observer_gain(a_obs, args.ratio)
-    grid = Grid([Axis("n", np.arange(500.0, 5001.0, 500.0), "rpm"),
-                 Axis("mf", np.arange(0.0, 60.001, 1.0), "mg/stroke")])
-    rules = FreezeRules(hold=args.hold, **_thresholds(args.freeze))
-    runs = {}
-    timing = None
-    for name, use_table, r in (("observer, no table", False, rules), ("observer + table", True, rules),
-                               ("observer + table, rules off", True, FreezeRules.off())):
-        table = AdaptiveTable(grid, law=args.table_law, ratio=args.table_ratio) if use_table else None
-        obs = BiasObserver(K, a=a_obs, tau=tau_obs, dt=dt, rules=r, table=table)
-        t0 = time.perf_counter()
-        res = obs.run(sim.lam_model, sim.lam_sensor, sim.n, sim.mf)
-        if use_table and timing is None:
-            timing = time.perf_counter() - t0
-        runs[name] = (res, table)
-    # a second timing of the table run (the first call may include loading compiled code)
-    obs = BiasObserver(K, a=a_obs, tau=tau_obs, dt=dt, rules=rules, table=AdaptiveTable(grid, ratio=args.table_ratio))
-    t0 = time.perf_counter()
-    obs.run(sim.lam_model, sim.lam_sensor, sim.n, sim.mf)
-    timing = min(timing, time.perf_counter() - t0)
-
-    k1 = len(one)
+    out = drive_cycle(args.case, args.urban_cycles, args.passes, args.seed, args.ratio, args.table_ratio,
+                      args.table_law, args.spikes, args.sensor_a, args.sensor_tau, args.model_scale,
+                      args.hold, _thresholds(args.freeze))
+    one, traj, sim, sensor, K, grid = (out[k] for k in ("one", "traj", "sim", "sensor", "K", "grid"))
+    dt, a_obs, tau_obs, k1, runs = out["dt"], out["a_obs"], out["tau_obs"], out["k1"], out["runs"]
     last = slice((args.passes - 1) * k1, None)
-    first = slice(0, k1)
-    truth = sim.lam_true
-    valid = ~sim.saturated
     print(f"case: {one.name}, {one.t[-1] + dt:.0f} s x {args.passes} passes at {1 / dt:g} Hz, seed {args.seed}")
     print(f"sensor: a = {args.sensor_a:g}, tau = {args.sensor_tau:g} s, noise {sensor.noise:g}, "
           f"saturation below {sensor.sat_level:g} ({100 * sim.saturated[last].mean():.1f} % of the "
           f"evaluated pass), spikes {args.spikes:g}/s; observer assumes a = {a_obs}, tau = {tau_obs} s")
     print(f"K_inf = [{K[0]:.5f}, {K[1]:.5f}]  (sigma_w^2/sigma_v^2 = {args.ratio:.5g}); table "
           f"{grid.shape[0]}x{grid.shape[1]} nodes, law {args.table_law}, ratio {args.table_ratio:g}")
-    print(f"simulation {t_sim:.2f} s; observer with table {len(traj) / timing:,.0f} steps/s\n")
-    e_model = rms((sim.lam_model - truth)[last])
-    e_sensor = rms((sim.lam_sensor - truth)[last])
-    rows = [("biased model lambda_m", sim.lam_model), ("delayed sensor lambda_s", sim.lam_sensor)]
-    rows += [(name, res.lam_hat) for name, (res, _) in runs.items()]
+    print(f"simulation {out['t_sim']:.2f} s; observer with table {len(traj) / out['timing']:,.0f} steps/s\n")
+    e_model, e_sensor = out["e_model"], out["e_sensor"]
     print("RMS error of lambda^-1 versus truth (evaluated pass; first pass and sensor-valid samples "
           "for reference):")
     print(f"{'signal':<30} {'last pass':>10} {'/ model':>8} {'/ sensor':>9} {'first pass':>11} {'valid only':>11}")
-    for name, x in rows:
-        e = x - truth
-        el = rms(e[last])
-        print(f"{name:<30} {el:>10.5f} {el / e_model:>8.3f} {el / e_sensor:>9.3f} {rms(e[first]):>11.5f} "
-              f"{rms(e[last][valid[last]]):>11.5f}")
+    for name, el, ef, ev in out["errors"]:
+        print(f"{name:<30} {el:>10.5f} {el / e_model:>8.3f} {el / e_sensor:>9.3f} {ef:>11.5f} "
+              f"{ev:>11.5f}")
     res, table = runs["observer + table"]
     counts = res.rule_counts()
     print("\nfreezing (observer + table, whole run): "
@@ -128,8 +88,7 @@ def run(args) -> int:
           + f" of {len(traj)} steps ({100 * res.frozen.mean():.1f} % frozen)")
     print(f"table: {table.n_updates} updates, {int(np.count_nonzero(table.counts))} nodes touched, "
           f"values {table.values.min():.4f}..{table.values.max():.4f}")
-    e_tab = rms((res.lam_hat - truth)[last])
-    ok = e_tab <= 0.5 * e_model and e_tab <= 0.7 * e_sensor
+    e_tab, ok = out["e_table"], out["ok"]
     print(f"\nacceptance (table RMS <= 0.5 x model and <= 0.7 x sensor): {'met' if ok else 'NOT met'} "
           f"({e_tab / e_model:.3f} x model, {e_tab / e_sensor:.3f} x sensor)")
     if args.plot:
@@ -140,7 +99,7 @@ def run(args) -> int:
 def _thresholds(items):
     from dataclasses import fields
 
-    from ..bias import FreezeRules
+    from experiments.bias_observer import FreezeRules
 
     names = {f.name for f in fields(FreezeRules)} - {"hold"}
     out = {}

@@ -45,7 +45,7 @@ def errors(est, truth, settle_mask):
 
 
 def run(args) -> int:
-    from ..bench import demo_paths
+    from ..demo_data import demo_paths
     from ..estimator import Estimator
     from ..logs import read_log
     from ..trending import health_summary

@@ -1,5 +1,8 @@
 """pwl tables WHAT: adaptive look-up table experiments (seed 000 sec. 5, seed 003 battery) and
-the table benchmark. Prints tables; writes PNG plots into --out when matplotlib is installed."""
+the table benchmark. Prints tables; writes PNG plots into --out when matplotlib is installed.
+
+The experiments are :mod:`experiments.tables` (imported inside ``run``), the benchmark
+:mod:`pwl.bench.tables`; this module parses the arguments, prints and plots."""
 import json
 import os
 
@@ -40,7 +43,7 @@ def run(args) -> int:
 
 
 def _bench(args) -> int:
-    from ..bench_tables import bench_tables
+    from ..bench.tables import bench_tables
 
     print_result(bench_tables(n_points=args.points), args.json)
     return 0
@@ -60,7 +63,7 @@ def _plots_ok(args):
 
 
 def _seed000(args) -> int:
-    from ..experiments_tables import format_seed000, seed000
+    from experiments.tables import format_seed000, seed000
 
     n = args.n or 1000
     res = seed000(n=n, seeds=args.seeds)
@@ -113,9 +116,8 @@ def _seed000(args) -> int:
 
 
 def _battery(args) -> int:
+    from experiments.tables import battery_compare
     from models import battery
-
-    from ..experiments_tables import battery_compare
 
     sim = battery.simulate(n=args.n or 5000, seed=args.seed)
     r = battery_compare(sim, length=args.length)

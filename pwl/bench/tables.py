@@ -12,10 +12,10 @@ import numpy as np
 
 from numba import njit
 
-from .bench import _best_of
-from .grid import Axis, Grid, locate
-from .interp import corner_weights
-from .tables import LAW_EXACT, table_predict, table_run, table_update
+from ..grid import Axis, Grid, locate
+from ..interp import corner_weights
+from ..tables import LAW_EXACT, table_predict, table_run, table_update
+from .speed import _best_of
 
 _NONE = np.zeros((0, 0))  # no covariance: the exact law
 
@@ -79,7 +79,7 @@ def bench_tables(n_points: int = 2_000_000, n_ref: int = 20_000, ratio: float = 
     """2-D exact-law updates per second: numba kernel (slowly moving and random operating points)
     and the numpy reference (random points), their ratio, and the largest difference of the two
     tables after the same n_ref updates."""
-    from .bench import random_walk
+    from .speed import random_walk
 
     grid = engine_grid()
     rng = np.random.default_rng(seed)

@@ -1,8 +1,8 @@
 """Experiments with adaptive tables: seed 000 section 5 and the seed 003 battery case.
 
 Plain functions returning numbers (the ``pwl tables`` command prints and plots them; the tests
-check the claims on small seeded runs). Core dependencies only: the battery case takes the
-simulated data as arrays (``models.battery.simulate`` makes them), so pwl never imports models.
+check the claims on small seeded runs). pwl core only (the adaptive tables): the battery case
+takes the simulated data as arrays (``models.battery.simulate`` makes them).
 
 Seed 000 section 5, as set up here (the paper gives no functions or grid sizes; docs explain):
 
@@ -18,9 +18,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .grid import Axis, Grid
-from .interp import interpolate
-from .tables import AdaptiveTable
+from pwl.grid import Axis, Grid
+from pwl.interp import interpolate
+from pwl.tables import AdaptiveTable
 
 SIGMA_RATIOS = (0.0, 0.1, 1.0)  # sigma_x / sigma_theta; the gain laws take its square
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .database import OUT_NONE, GainDatabase
+from ..database import OUT_NONE, GainDatabase
 
 
 def node_weights(axes, point):

@@ -45,7 +45,8 @@ estimate for that step.
 The kernel :func:`observe` runs over a whole log (or a chunk of one: state, delay line and search
 hints carry over) with no per-step allocation; :class:`BiasObserver` holds the state and checks
 input. The gain K is an argument: compute it offline (``linearize.bias.observer_gain``, which uses
-the project's one steady-state gain formula); this module imports numpy and numba only.
+the project's one steady-state gain formula); this module imports numpy, numba and pwl's grid,
+interpolation and table kernels only.
 """
 from __future__ import annotations
 
@@ -55,9 +56,9 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from numba import njit
 
-from .grid import locate
-from .interp import corner_weights
-from .tables import LAWS, count_ratio, table_predict, table_update
+from pwl.grid import locate
+from pwl.interp import corner_weights
+from pwl.tables import LAWS, count_ratio, table_predict, table_update
 
 #: flag bits per step: F1..F7 -> bits 0..6
 FLAG_F1, FLAG_F2, FLAG_F3, FLAG_F4, FLAG_F5, FLAG_F6, FLAG_F7 = (1 << i for i in range(7))

@@ -25,10 +25,10 @@ import os
 import h5py
 import numpy as np
 
-from .errors import PwlError
-from .h5io import seal
-from .logs import Log, write_log
-from .results import FLAG_COUNTS
+from ..errors import PwlError
+from ..h5io import seal
+from ..logs import Log, write_log
+from ..results import FLAG_COUNTS
 
 DB_KINDS = ("bitflip", "byte", "truncate", "append", "zero-block", "h5-delete", "h5-reshape",
             "h5-attr", "h5-nonfinite", "sealed-delete", "sealed-reshape", "sealed-attr",

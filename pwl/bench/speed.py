@@ -5,11 +5,11 @@ import time
 
 import numpy as np
 
-from .grid import Axis, Grid
 from numba import njit
 
-from .grid import locate
-from .interp import as_table, corner_weights, interp_many, interp_rows
+from ..demo_data import demo_paths
+from ..grid import Axis, Grid, locate
+from ..interp import as_table, corner_weights, interp_many, interp_rows
 
 
 def _best_of(fn, repeat=3):
@@ -83,21 +83,13 @@ def bench_interp(n_points: int = 200_000, block: int = 200, shape=(9, 7, 5), see
     return res
 
 
-def demo_paths():
-    """The shipped demo database and sample logs (in the repository's data/ folder)."""
-    import os
-    data = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "data")
-    return (os.path.join(data, "turbofan_demo.h5"),
-            [os.path.join(data, f"flight_{k}.h5") for k in ("new", "degraded")])
-
-
 def bench_run(db_path=None, log_path=None, n_ref: int = 2000) -> dict:
     """Steps per second of the numba runtime on a whole log versus the plain numpy +
-    RegularGridInterpolator reference (:mod:`pwl.reference`) on its first ``n_ref`` samples,
+    RegularGridInterpolator reference (:mod:`pwl.bench.reference`) on its first ``n_ref`` samples,
     in the same run; also their largest difference on those samples, and the speed with a
     learning bias table and of the online-covariance (full Kalman filter) mode."""
-    from .estimator import Estimator
-    from .logs import read_log
+    from ..estimator import Estimator
+    from ..logs import read_log
     from .reference import ReferenceFilter
 
     d_db, d_logs = demo_paths()
@@ -157,9 +149,9 @@ def bench_stream(db_path=None, log_path=None, n: int = 20000) -> dict:
     """Per-sample cost of :class:`pwl.streaming.Stream` (one ``step`` call per sample from Python)
     against a batch run of the same ``n`` samples of the demo flight, in the same run; and their
     largest difference (the numbers must be equal)."""
-    from .estimator import Estimator
-    from .logs import read_log
-    from .streaming import Stream
+    from ..estimator import Estimator
+    from ..logs import read_log
+    from ..streaming import Stream
 
     d_db, d_logs = demo_paths()
     est = Estimator(db_path or d_db)
