@@ -44,10 +44,10 @@ def main(argv=None) -> int:
         settled = (log.time >= log.time[0] + args.settle) & (np.arange(len(log)) >= k0)
         h_true = None
         for online in (False, True):
-            est = Estimator(args.db, online=online)
+            est = Estimator(args.db, "online" if online else "steady")
             if h_true is None:
                 h_true = np.column_stack([log.truth[h] for h in est.db.names["h"]])
-            old = Estimator(est.db, online=online)
+            old = Estimator(est.db, est.mode)
             old.pm.ko_avail[:] = 0          # the filter before sensor-out gains: no update
             runs = [("all sensors", est, log), (f"{args.sensor} dead", est, dead)]
             if not online:

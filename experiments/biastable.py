@@ -8,7 +8,7 @@ The experiment (each flight simulated with models.flight, short profile):
    corrected fan speed to ``offset + slope`` at 100 %): a unit-to-unit thermocouple mismatch
    that the gain database (built from the nominal model) does not know;
 2. learning: ``--learn`` flights of the engine while new (nominal health), run with the tuners
-   held (``tune=False``: a new engine defines nominal health) and a bias table on T48 over the
+   held (mode ``"untuned"``: a new engine defines nominal health) and a bias table on T48 over the
    dynamics grid's scheduling variables learning from the innovations;
 3. the table is locked and the degraded engine is flown: health estimates with the table versus
    without it, against the truth, and for reference on the same flight without the mismatch.
@@ -52,7 +52,7 @@ def experiment(db_path, learn=3, ratio=1e3, offset=0.01, slope=0.01, health=None
 
     model = Turbofan()
     health = DEGRADED if health is None else health
-    learner = Estimator(db_path, tune=False)
+    learner = Estimator(db_path, "untuned")
     tables = learner.new_bias_tables(["T48"], ratio=ratio)
     for k in range(learn):
         learner.run(fly(model, seed + k, None, offset, slope, cruise))

@@ -193,8 +193,8 @@ def compare_database(db_path, logs, k: int = 3, seed: int = 0, settle: float = 1
     the estimator with interpolated gains and with zone gains over ``logs`` that carry truth.
 
     Three estimators: "interp" (the database's steady gains, interpolated), "zones" (the zone
-    centroid gain of the nearest dynamics node, picked per step: ``Estimator(zones=True)``) and "online" (the full Kalman filter of the same model, :class:`Estimator`
-    ``online=True``: the EKF baseline). Returns {"text": printable report, "rows": [(log, channel,
+    centroid gain of the nearest dynamics node, picked per step: ``Estimator(db, "zones")``) and "online" (the full Kalman filter of the same model, :class:`Estimator`
+    ``"online"``: the EKF baseline). Returns {"text": printable report, "rows": [(log, channel,
     {estimator: (RMS, mean)})] in % of truth, "health": [(log, names, {estimator: median
     estimates}, truth)], "sizes": {...} bytes, "record", "speed": :func:`filter_speed` on the
     first log, "traces": the last log's % error of its first unmeasured output with truth, per
@@ -237,7 +237,7 @@ def compare_database(db_path, logs, k: int = 3, seed: int = 0, settle: float = 1
         lines.append(f"  zone-gain copy written to {out}")
     rows, health, speed, traces = [], [], {}, None
     if logs:
-        ests = {"interp": Estimator(db), "zones": Estimator(zoned, zones=True), "online": Estimator(db, online=True, health_std=False)}
+        ests = {"interp": Estimator(db), "zones": Estimator(zoned, "zones"), "online": Estimator(db, "online", health_std=False)}
         for path in logs:
             log = read_log(path)
             res = {f: e.run(log) for f, e in ests.items()}

@@ -9,14 +9,46 @@ from __future__ import annotations
 import difflib
 import importlib
 import math
+from typing import Mapping, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
 from pwl.errors import PwlError
 
 KINDS = ("x", "u", "y", "z", "h")
-REQUIRED = ("name", "x_names", "u_names", "y_names", "z_names", "h_names", "p_names", "units",
-            "environment", "trim", "evaluate", "parameters")
+
+
+@runtime_checkable
+class Plant(Protocol):
+    """What the builder needs of a plant (docs/plant-protocol.md has the optional attributes:
+    time, dt, h_ref, perturbation, sensor_noise, correction, theta_delta, schedule, ranges).
+    Structural: a plant does not inherit from it; :func:`check_plant` checks an object
+    against it and names what is missing."""
+
+    name: str
+    x_names: Sequence[str]     # states
+    u_names: Sequence[str]     # inputs (actuators)
+    y_names: Sequence[str]     # sensed outputs
+    z_names: Sequence[str]     # unmeasured outputs
+    h_names: Sequence[str]     # health parameters
+    p_names: Sequence[str]     # scheduling variables (the grid axes)
+    units: Mapping[str, str]   # unit of every name above and of every log channel the runtime reads
+
+    def environment(self, p: np.ndarray) -> np.ndarray:
+        """The ambient condition (float64 array) of scheduling point p."""
+
+    def trim(self, p: np.ndarray, h: np.ndarray, env: np.ndarray, guess: dict | None = None) -> dict:
+        """Steady state at p with health h: {"x", "u", "y", "z"} float64 arrays; raises on failure."""
+
+    def evaluate(self, x: np.ndarray, u: np.ndarray, h: np.ndarray, env: np.ndarray) -> tuple:
+        """(f, y, z) with states and inputs held: f = dx/dt (continuous) or x[k+1] (discrete)."""
+
+    def parameters(self) -> dict:
+        """JSON-serialisable model parameters (stored in the database)."""
+
+
+#: the members every plant must have: the protocol's, in its order
+REQUIRED = tuple(Plant.__annotations__) + ("environment", "trim", "evaluate", "parameters")
 
 
 class PlantProtocolError(PwlError, TypeError):
@@ -45,12 +77,16 @@ def import_plant(target: str):
     return getattr(module, cls)
 
 
-def check_plant(plant):
-    """Return ``plant`` if it satisfies the protocol, else raise :class:`PlantProtocolError`."""
+def check_plant(plant) -> Plant:
+    """Return ``plant`` if it satisfies the :class:`Plant` protocol (and its optional parts are
+    consistent), else raise :class:`PlantProtocolError` naming what is missing or wrong."""
     missing = [a for a in REQUIRED if not hasattr(plant, a)]
     if missing:
         raise PlantProtocolError(f"plant {type(plant).__name__} lacks {', '.join(missing)} "
                                  f"(see docs/plant-protocol.md)")
+    uncallable = [a for a in REQUIRED[-4:] if not callable(getattr(plant, a))]
+    if uncallable:
+        raise PlantProtocolError(f"plant {type(plant).__name__}: {', '.join(uncallable)} must be methods")
     t = getattr(plant, "time", "continuous")
     if t not in ("continuous", "discrete"):
         raise PlantProtocolError(f"plant.time must be 'continuous' or 'discrete', got {t!r}")

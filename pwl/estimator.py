@@ -18,7 +18,7 @@ from .runtime import (FLAG_DYN_OUTSIDE, FLAG_NOT_STARTED, FLAG_TRIM_OUTSIDE, HEA
                       Filter, Inputs, Outputs, PackedModel, blank_implausible, filter_loop, report, screen)
 from .results import LOG_ATTRS, Result, append_rows, init_result_file
 from .snapshots import SNAPSHOT_OUTPUTS, SnapshotAccumulator, SteadyConfig
-from .errors import PwlError
+from .errors import PwlError, UsageError
 from .tables import LAWS, AdaptiveTable, TableError
 
 OUTPUTS = ("x_hat", "q_hat", "h_hat", "y_hat", "residual", "z_hat")
@@ -29,30 +29,53 @@ class EnvelopeError(PwlError, ValueError):
     """The operating point left the grid and the database's policy is ``error``."""
 
 
+#: the estimator's modes: how the update gain is made (:class:`Estimator`)
+MODES = ("steady", "untuned", "online", "zones")
+
+
 class Estimator:
     """A piecewise-linear self-tuning model with its steady-state Kalman filter.
 
-    ``Estimator(db)`` with a :class:`GainDatabase` or a path. State persists across ``run`` /
-    ``step`` calls until :meth:`reset` (one flight = reset, then run). ``tune=False`` gives the
-    untuned model (tuners held at ``q0``, default 0: nominal health).
+    Parameters
+    ----------
+    db : GainDatabase or path
+        The gain database (``pwl build``).
+    mode : {"steady", "untuned", "online", "zones"}
+        How the update gain is made (:data:`MODES`):
 
-    ``bias``: the tuning element, adaptive bias tables on sensed channels: a dict channel ->
-    :class:`pwl.tables.AdaptiveTable` (from :meth:`new_bias_tables` or :func:`load_bias_tables`),
-    all on one grid over scheduling variables, values in corrected units. They learn from the
-    filter's innovations during runs (unless locked) and keep what they learnt across
-    :meth:`reset` and flights; :meth:`save_bias_tables` persists them.
+        - ``"steady"`` (default): the stored steady-state gains, interpolated at the operating
+          point;
+        - ``"untuned"``: the same with the tuners held at ``q0`` (default 0: nominal health),
+          the untuned model;
+        - ``"online"``: the full Kalman filter of the same piecewise-linear model: the error
+          covariance is propagated every step with the interpolated A_a, Q_a and the gain solved
+          from it (an EKF whose Jacobians are the database's matrices; the baseline the steady
+          gains are measured against). Slower (``pwl zones --database``); the current covariance
+          is :attr:`covariance`, and results carry ``h_std``, the standard deviation of every
+          health estimate (docs/zones.md says how to read it);
+        - ``"zones"``: the gain picked from the database's k-means zones (``/zones``, built by
+          :func:`linearize.zones.database_zones`): the centroid gain of the zone of the nearest
+          dynamics node, instead of the interpolated K.
+    q0 : array (nq,), optional
+        Initial tuners (default 0), e.g. the last flight's.
+    bias : dict, optional
+        The tuning element, adaptive bias tables on sensed channels: channel ->
+        :class:`pwl.tables.AdaptiveTable` (from :meth:`new_bias_tables` or
+        :func:`load_bias_tables`), all on one grid over scheduling variables, values in
+        corrected units. They learn from the filter's innovations during runs (unless locked)
+        and keep what they learnt across :meth:`reset` and flights; :meth:`save_bias_tables`
+        persists them.
+    health_std : bool
+        Online mode: compute ``h_std`` (False saves about 0.2 microseconds per step).
+    resample : bool
+        Resample logs whose sample interval is not the database's dt (else refused).
+    channel_map : ChannelMap or path, optional
+        How log files name and scale their channels (:mod:`pwl.channel_map`).
+    health_hold : float
+        See below.
 
-    ``online=True``: the full Kalman filter of the same piecewise-linear model instead of the
-    steady-state one: the error covariance is propagated every step with the interpolated A_a,
-    Q_a and the gain solved from it (an EKF whose Jacobians are the database's matrices; the
-    baseline the steady gains are measured against). Slower (see ``pwl zones --database``); the
-    current covariance is :attr:`covariance`, and results carry ``h_std``, the standard deviation
-    of every health estimate (``health_std=False``: not computed, about 0.2 microseconds per step
-    less; docs/zones.md says how to read it).
-
-    ``zones=True``: the gain is picked from the database's k-means zones (``/zones``, built by
-    :func:`linearize.zones.database_zones`): the centroid gain of the zone of the nearest
-    dynamics node, instead of the interpolated K.
+    State persists across ``run`` / ``step`` calls until :meth:`reset` (one flight = reset,
+    then run).
 
     ``health_hold``: with steady gains and one sensor missing, the update goes on from the others
     (FLAG_PARTIAL); when that sensor is one the health estimates depend on -- without it some
@@ -62,15 +85,18 @@ class Estimator:
     The tuners and every other estimate go on. ``float("inf")``: never hold.
     """
 
-    def __init__(self, db, q0=None, tune: bool = True, bias: dict | None = None, online: bool = False,
-                 health_std: bool = True, zones: bool = False, resample: bool = False,
-                 channel_map=None, health_hold: float = HEALTH_HOLD_RATIO):
+    def __init__(self, db, mode: str = "steady", *, q0=None, bias: dict | None = None,
+                 health_std: bool = True, resample: bool = False, channel_map=None,
+                 health_hold: float = HEALTH_HOLD_RATIO):
+        if mode not in MODES:
+            raise UsageError(f"estimator mode {mode!r}: one of {', '.join(MODES)}")
+        self.mode = mode
+        tune, online, zones = mode != "untuned", mode == "online", mode == "zones"
         self.db = db if isinstance(db, GainDatabase) else GainDatabase.open(db)
         if channel_map is not None and not hasattr(channel_map, "apply"):
             from .channel_map import ChannelMap
             channel_map = ChannelMap.load(channel_map)
         self.channel_map = channel_map   # logs read from files go through it (pwl.channel_map)
-        self.tune = tune
         self.resample = resample
         zt = None
         if zones:
@@ -358,9 +384,7 @@ class Estimator:
         import datetime
 
         from . import __version__
-        mode = "online" if self.pm.online else ("zones" if self.pm.z_labels.size else "steady")
-        if not self.tune:
-            mode += "+untuned"
+        mode = {"untuned": "steady+untuned"}.get(self.mode, self.mode)   # as recorded before modes
         if self.bias:
             mode += "+bias"
         if self.channel_map is not None:   # another map, another reading of the same log

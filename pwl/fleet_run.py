@@ -60,8 +60,7 @@ class Job:
 
     database: str
     digest: str
-    online: bool = False
-    zones: bool = False
+    mode: str = "steady"
     resample: bool = False
     channel_map: str | None = None
     outputs: tuple | None = None
@@ -71,7 +70,7 @@ class Job:
     host: str = ""
 
     def estimator_key(self) -> tuple:
-        return (self.database, self.digest, self.online, self.zones, self.resample, self.channel_map)
+        return (self.database, self.digest, self.mode, self.resample, self.channel_map)
 
 
 # ---- worker side ---------------------------------------------------------------------------------
@@ -141,8 +140,7 @@ def _estimator(job: Job) -> Estimator:
                     raise DatabaseError(f"{job.database}: changed since this run started (sha256 "
                                         f"{db.digest[:12]}... instead of {job.digest[:12]}...); run again")
                 _DATABASES[key[:2]] = db
-        cache[key] = Estimator(db, online=job.online, zones=job.zones, resample=job.resample,
-                               channel_map=job.channel_map)
+        cache[key] = Estimator(db, job.mode, resample=job.resample, channel_map=job.channel_map)
     return cache[key]
 
 
@@ -249,13 +247,13 @@ def remove_stale_temporaries(outs) -> int:
 
 
 def run_many(db_path, log_paths, outdir, workers: int | None = None, csv: bool = False,
-             progress=None, online: bool = False, zones: bool = False, names=None,
+             progress=None, mode: str = "steady", names=None,
              resample: bool = False, *, channel_map=None, executor=None, outputs=None, every: int = 1,
              compression: str | None = DEFAULT_COMPRESSION, force: bool = False) -> list[LogRun]:
     """Estimate every log into ``outdir`` (one results file per log, see :func:`run_log`).
 
-    ``online``, ``zones``, ``resample``: the full Kalman filter, the zone gains, logs resampled
-    to the database's dt, as for :class:`Estimator`; ``channel_map``: a channel-map TOML path that
+    ``mode``, ``resample``: the estimator's mode (steady, untuned, online, zones) and logs
+    resampled to the database's dt, as for :class:`Estimator`; ``channel_map``: a channel-map TOML path that
     every log is read through (:mod:`pwl.channel_map`). ``names``: results names relative to
     ``outdir`` (see :func:`result_names`; folder trees such as a fleet's ``ESN001/flight_000.h5``
     keep their sub-folders). ``outputs``, ``every``, ``compression``: what the results files hold
@@ -272,11 +270,10 @@ def run_many(db_path, log_paths, outdir, workers: int | None = None, csv: bool =
     logs = [os.fspath(p) for p in log_paths]
     outs = [output_path(p, outdir, csv, n) for p, n in zip(logs, result_names(logs, names))]
     db = db_path if isinstance(db_path, GainDatabase) else GainDatabase.open(db_path)
-    est = Estimator(db, online=online, zones=zones, resample=resample,  # named errors first
-                    channel_map=channel_map)
+    est = Estimator(db, mode, resample=resample, channel_map=channel_map)  # named errors first
     keep = select_outputs(est.names, outputs)
     compression_filters(compression)
-    job = Job(os.path.abspath(db.path), db.digest, online, zones, resample,
+    job = Job(os.path.abspath(db.path), db.digest, mode, resample,
               None if channel_map is None else os.path.abspath(os.fspath(channel_map)), None if outputs is None else tuple(keep), check_every(every), compression, force,
               socket.gethostname())
     _DATABASES.setdefault((job.database, job.digest), db)   # this process and forked workers

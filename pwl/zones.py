@@ -2,7 +2,7 @@
 
 A :class:`ZoneTable` is the online form of the ``/zones`` record of a gain database (built offline
 by :mod:`linearize.zones`, seed paper 001): k centroid gains and a lookup grid over the
-scheduling box whose nodes carry a zone label. The runtime (``Estimator(zones=True)``,
+scheduling box whose nodes carry a zone label. The runtime (``Estimator(db, "zones")``,
 :meth:`pwl.runtime.PackedModel.from_database`) reads the centroid gains and the node labels of
 zones built on the database's dynamics grid.
 

@@ -40,11 +40,11 @@ def online_db(**kw):
 def test_online_equals_numpy_reference(kw):
     db = online_db(**kw)
     U, Y, S, TH, DE = inputs(db, margin=0.05)
-    res = Estimator(db, online=True).run_arrays(U, Y, S, TH, DE)
+    res = Estimator(db, "online").run_arrays(U, Y, S, TH, DE)
     ref = ReferenceFilter(db, online=True).run(U, Y, S, TH, DE)
     assert_equals_reference(res, ref)
     # without the health standard deviations: the same estimates, no h_std output
-    lean = Estimator(db, online=True, health_std=False).run_arrays(U, Y, S, TH, DE)
+    lean = Estimator(db, "online", health_std=False).run_arrays(U, Y, S, TH, DE)
     assert "h_std" not in lean.outputs
     np.testing.assert_array_equal(lean.q_hat, res.q_hat)
     # and the online gains are not the stored ones: the steady filter gives other estimates
@@ -54,7 +54,7 @@ def test_online_equals_numpy_reference(kw):
 
 def test_online_streaming_equals_batch_exactly():
     db = online_db()
-    est = Estimator(db, online=True)
+    est = Estimator(db, "online")
     U, Y, S, TH, DE = inputs(db, n=60)
     Y[10:15, 0] = np.nan
     batch = est.run_arrays(U, Y, S, TH, DE)
@@ -78,7 +78,7 @@ def test_online_covariance_converges_to_dare_at_a_fixed_point():
     S = np.tile([p[0], p[1] / 2.0], (n, 1))          # schedule channel 2 has scale 2
     U = np.ones((n, db.n("u")))
     Y = 1.0 + 0.01 * np.random.default_rng(3).normal(size=(n, db.n("y")))
-    est = Estimator(db, online=True)
+    est = Estimator(db, "online")
     est.run_arrays(U, Y, S)
     ref = ReferenceFilter(db)
     A, C, Q, R = (ref.mats[k](p)[0] for k in ("A", "C", "Q", "R"))
@@ -114,9 +114,10 @@ def test_covariance_kernels_against_numpy(m):
     np.testing.assert_array_equal(Pk2, Pk)
 
 
-def test_online_needs_tuning():
-    with pytest.raises(ValueError, match="tune=False"):
-        Estimator(online_db(), tune=False, online=True)
+def test_one_mode_of_four():
+    for bad in ("online+untuned", "Steady", ""):
+        with pytest.raises(ValueError, match="mode .*one of steady, untuned, online, zones"):
+            Estimator(online_db(), bad)
 
 
 def test_pwl_run_online_writes_the_online_estimates(tmp_path):
@@ -132,7 +133,7 @@ def test_pwl_run_online_writes_the_online_estimates(tmp_path):
     write_log(tmp_path / "f0.h5", full_log(db, n=300))
     assert main(["run", str(tmp_path / "db.h5"), str(tmp_path / "f0.h5"), "-o", str(tmp_path / "out"),
                  "-j", "1", "--online"]) == 0
-    want = Estimator(tmp_path / "db.h5", online=True).run(tmp_path / "f0.h5")
+    want = Estimator(tmp_path / "db.h5", "online").run(tmp_path / "f0.h5")
     steady = Estimator(tmp_path / "db.h5").run(tmp_path / "f0.h5")
     with h5py.File(tmp_path / "out" / "f0.estimates.h5") as f:
         np.testing.assert_array_equal(f["q_hat"][()], want.q_hat)
@@ -145,7 +146,7 @@ def test_pwl_run_online_writes_the_online_estimates(tmp_path):
 
 @pytest.mark.parametrize("kw", [{}, {"correction": False}])
 def test_zone_gains_picked_per_step_equal_reference(kw):
-    """Estimator(zones=True) picks the centroid gain of the nearest dynamics node's zone."""
+    """Estimator(db, "zones") picks the centroid gain of the nearest dynamics node's zone."""
     from linearize.zones import database_zones
     from pwl.zones import ZoneTable
 
@@ -154,13 +155,11 @@ def test_zone_gains_picked_per_step_equal_reference(kw):
     zt = ZoneTable.from_record(db.zones)
     assert len(set(zt.flat_labels)) == 3
     U, Y, S, TH, DE = inputs(db, margin=0.05)
-    res = Estimator(db, zones=True).run_arrays(U, Y, S, TH, DE)
+    res = Estimator(db, "zones").run_arrays(U, Y, S, TH, DE)
     ref = ReferenceFilter(db, zones=zt).run(U, Y, S, TH, DE)
     assert_equals_reference(res, ref)
     interp = Estimator(db).run_arrays(U, Y, S, TH, DE)
     assert np.abs(interp.q_hat - res.q_hat).max() > 1e-6
-    with pytest.raises(ValueError, match="exclude"):
-        Estimator(db, zones=True, online=True)
     db.zones = None
     with pytest.raises(ValueError, match="no zones record"):
-        Estimator(db, zones=True)
+        Estimator(db, "zones")

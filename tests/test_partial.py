@@ -95,7 +95,7 @@ def test_online_reduced_update_equals_reference():
     U, Y, S, TH, DE = inputs(db, n=150)
     Y[20:40, 0] = np.nan            # any subset: one out, two out
     Y[60:70, [0, 2]] = np.nan
-    res = Estimator(db, online=True).run_arrays(U, Y, S, TH, DE)
+    res = Estimator(db, "online").run_arrays(U, Y, S, TH, DE)
     ref = ReferenceFilter(db, online=True).run(U, Y, S, TH, DE)
     assert_equals_reference(res, ref)
     assert np.all(res.flags[20:40] & FLAG_PARTIAL) and np.all(res.flags[60:70] & FLAG_PARTIAL)

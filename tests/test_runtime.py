@@ -248,7 +248,7 @@ def test_many_logs_one_bad_does_not_lose_others(tmp_path):
 def test_untuned_model_keeps_tuners_fixed():
     db = names_db()
     U, Y, S, TH, DE = inputs(db, n=50)
-    r = Estimator(db, tune=False, q0=[0.5, -0.25]).run_arrays(U, Y, S, TH, DE)
+    r = Estimator(db, "untuned", q0=[0.5, -0.25]).run_arrays(U, Y, S, TH, DE)
     np.testing.assert_allclose(r.q_hat, np.tile([0.5, -0.25], (50, 1)), rtol=1e-14)
     tuned = Estimator(db).run_arrays(U, Y, S, TH, DE)
     assert np.abs(tuned.q_hat[-1]).max() > 1e-3

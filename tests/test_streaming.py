@@ -40,7 +40,7 @@ def run_stream(stream, rows):
 def test_stream_equals_batch_bit_for_bit(mode):
     out_gains = lambda: with_sensor_out_gains(names_db(), log=lambda *a: None)   # noqa: E731
     db = {"online": online_db, "sensor-out": out_gains, "health-held": out_gains}.get(mode, names_db)()
-    est = Estimator(db, online=mode == "online", tune=mode != "untuned",
+    est = Estimator(db, mode if mode in ("online", "untuned") else "steady",
                     health_hold=0.0 if mode == "health-held" else 3.0)
     U, Y, S, TH, DE = inputs(db, n=120)
     Y[10:20, 0] = np.nan          # a missing sensor

@@ -118,7 +118,7 @@ def bench_run(db_path=None, log_path=None, n_ref: int = 2000) -> dict:
         est.run_arrays(U, Y, S, TH, DE, out=dict(bufs_b))
     t_bias = _best_of(go_bias, repeat=5)
     est.new_bias_tables([])
-    onl = Estimator(est.db, online=True, health_std=False)  # the filter alone
+    onl = Estimator(est.db, "online", health_std=False)  # the filter alone
     onl.run_arrays(U, Y, S, TH, DE, out=dict(bufs))
 
     def go_online():

@@ -58,7 +58,7 @@ def run(args) -> int:
             raise FileNotFoundError(f"{p}: missing (the demo needs the shipped data/ folder of a checkout)")
     check_output(args.plot)
     tuned = Estimator(db_path)
-    untuned = Estimator(tuned.db, tune=False)
+    untuned = Estimator(tuned.db, "untuned")
     print(f"database: {db_path}  ({tuned.db.trim_grid.size} trim points, "
           f"{tuned.db.dyn_grid.size} dynamics points, tuners {', '.join(tuned.db.names['q'])})\n")
     rows, health_rows, plots = [], [], []

@@ -5,6 +5,8 @@ import sys
 import time
 
 from ..results import COMPRESSIONS, DEFAULT_COMPRESSION
+from ..errors import UsageError
+from ..estimator import MODES
 
 HELP = ("run the piecewise-linear Kalman filter over flight logs (HDF5, CSV, Parquet); exit status 1 "
         "when a log failed or had too few measurement updates")
@@ -45,12 +47,22 @@ def add_arguments(p):
                    help="exit status 1 when a log has a measurement update at fewer than this "
                         "fraction of its samples (default %(default)s): the estimates of such a log "
                         "are mostly open-loop predictions")
-    p.add_argument("--online", action="store_true",
-                   help="full Kalman filter: propagate the covariance and solve the gain every step "
-                        "(about 7x slower than the database's steady gains; for comparison)")
-    p.add_argument("--zones", action="store_true",
-                   help="pick the gain of the database's k-means zones (/zones, from pwl zones --database "
-                        "DB --out ZONED.h5) instead of interpolating it")
+    p.add_argument("--mode", choices=MODES, default=None,
+                   help="how the update gain is made: steady (default) the database's steady-state "
+                        "gains; untuned: the same with the tuners held at 0; online: the full Kalman "
+                        "filter, covariance propagated and gain solved every step (about 7x slower; for "
+                        "comparison); zones: the gain of the database's k-means zones (/zones, from pwl "
+                        "zones --database DB --out ZONED.h5)")
+    p.add_argument("--online", action="store_true", help="the same as --mode online")
+    p.add_argument("--zones", action="store_true", help="the same as --mode zones")
+
+
+def run_mode(args) -> str:
+    """The estimator mode of --mode, --online, --zones (one of them at most)."""
+    given = [m for m in (args.mode, "online" if args.online else None, "zones" if args.zones else None) if m]
+    if len(set(given)) > 1:
+        raise UsageError(f"choose one estimator mode (given: {', '.join(given)})")
+    return given[0] if given else "steady"
 
 
 def expand(paths, with_names: bool = False, any_hdf5: bool = False):
@@ -107,8 +119,8 @@ def run(args) -> int:
     from .output import check_output
 
     db = GainDatabase.open(args.database)  # fail early, with the named error, on a bad database
-    est = Estimator(db, online=args.online, zones=args.zones,   # and on options it cannot serve
-                    channel_map=args.channel_map)
+    mode = run_mode(args)
+    est = Estimator(db, mode, channel_map=args.channel_map)   # and on options it cannot serve
     select_outputs(est.names, args.outputs, where="--outputs")
     check_every(args.every)
     if args.dask and args.workers:
@@ -140,8 +152,8 @@ def run(args) -> int:
         bar.update(done)
 
     with _executor(args, len(logs)) as executor:
-        results = run_many(db, logs, args.outdir, args.workers, args.csv, progress, online=args.online,
-                           zones=args.zones, names=names, resample=args.resample,
+        results = run_many(db, logs, args.outdir, args.workers, args.csv, progress, mode=mode,
+                           names=names, resample=args.resample,
                        channel_map=args.channel_map, executor=executor,
                            outputs=args.outputs, every=args.every, compression=args.compression,
                            force=args.force)
