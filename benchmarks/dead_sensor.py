@@ -28,7 +28,8 @@ def main(argv=None) -> int:
     db_default, logs = demo_paths()
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--db", default=db_default, help="gain database (default: the demo's)")
-    ap.add_argument("--sensor", default="T48", help="the dead sensor (default %(default)s)")
+    ap.add_argument("--sensor", default="T48",
+                    help="the dead sensor, or several separated by commas (default %(default)s)")
     ap.add_argument("--settle", type=float, default=120.0, help="seconds ignored at the start (default %(default)s)")
     ap.add_argument("--at", type=float, default=0.0,
                     help="when the sensor dies, fraction of the flight (default %(default)s: from take-off)")
@@ -38,9 +39,10 @@ def main(argv=None) -> int:
     for path in logs:
         log = read_log(path)
         k0 = int(args.at * len(log))
-        v = np.array(log.channels[args.sensor], dtype=np.float64)
-        v[k0:] = np.nan
-        dead = Log(log.time, dict(log.channels, **{args.sensor: v}), log.units, attrs=log.attrs, path=log.path)
+        chans = dict(log.channels)
+        for c in args.sensor.split(","):
+            chans[c] = np.where(np.arange(len(log)) >= k0, np.nan, log.channels[c])
+        dead = Log(log.time, chans, log.units, attrs=log.attrs, path=log.path)
         settled = (log.time >= log.time[0] + args.settle) & (np.arange(len(log)) >= k0)
         h_true = None
         for online in (False, True):
@@ -48,7 +50,7 @@ def main(argv=None) -> int:
             if h_true is None:
                 h_true = np.column_stack([log.truth[h] for h in est.db.names["h"]])
             old = Estimator(est.db, est.mode)
-            old.pm.ko_avail[:] = 0          # the filter before sensor-out gains: no update
+            old._model = old._model._replace(ko_tab=np.zeros((1, 0)), sub_tab=np.zeros((1, 0)))  # no update
             runs = [("all sensors", est, log), (f"{args.sensor} dead", est, dead)]
             if not online:
                 runs.append((f"{args.sensor} dead, no update", old, dead))

@@ -102,6 +102,8 @@ class Model(NamedTuple):
     cls: np.ndarray        # int64 (nx+nu+ny+nz+ns,) the pair of every channel, order x u y z s
     s_scale: np.ndarray    # (ns,) schedule scale
     s_corr: np.ndarray     # bool (ns,) schedule channel corrected
+    s_state: np.ndarray    # int64 (ns,) the state a schedule channel measures (-1: none): its
+                           # estimate stands in while the channel is missing
     online: bool           # online covariance: dyn_tab holds Q_a and R
     p_tab: np.ndarray      # (dyn nodes, na*na) steady P (online; else (1, 0))
     V_pinv: np.ndarray     # (nh, nq)
@@ -110,6 +112,8 @@ class Model(NamedTuple):
     gate: np.ndarray       # (ny,) misfit gate, fraction of the prediction
     ko_tab: np.ndarray     # (dyn nodes * ny, ny * na) sensor-out gains, or (1, 0)
     ko_avail: np.ndarray   # int64 (dyn nodes * ny,) 0 none, 1 gain, 2 gain and health held
+    sub_tab: np.ndarray    # (dyn nodes, na*na + ny*ny) steady a-priori P and R, row-major: the
+                           # update from any subset of sensors (steady mode; else (1, 0))
 
 
 class Grids(NamedTuple):
@@ -203,6 +207,8 @@ class Work(NamedTuple):
     AP: np.ndarray
     ko_rows: np.ndarray
     kw: np.ndarray
+    pr: np.ndarray       # interpolated sub_tab row: steady P and R
+    Ps: np.ndarray       # its P (na, na), a view of pr
 
 
 @njit(cache=True, nogil=True)
@@ -297,13 +303,18 @@ def _not_started(out, k):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _interpolate(model, grids, filt, w, osl, cs):
-    """p_k = scale * channel (corrected where asked); trims into w.tw and the dynamics block into
-    w.dw at p_k, one search per grid and shared corner weights. Returns (flags, number of
+def _interpolate(io, model, grids, filt, w, k, osl, ost, cs):
+    """p_k = scale * channel (corrected where asked; a missing channel that measures a state:
+    the state's estimate, else its last valid value); trims into w.tw and the dynamics block
+    into w.dw at p_k, one search per grid and shared corner weights. Returns (flags, number of
     dynamics corners m, the dynamics grid's out-of-range mask)."""
     flags = 0
     for j in range(w.p.shape[0]):
-        v = filt.state[osl + j] * model.s_scale[j]
+        i = model.s_state[j]
+        if i >= 0 and not np.isfinite(io.S[k, j]) and filt.state[ost] == 1.0:
+            v = filt.state[i] * w.fac[model.cls[i]] * model.s_scale[j]   # the estimate, physical
+        else:
+            v = filt.state[osl + j] * model.s_scale[j]
         if model.s_corr[j]:
             v /= w.fac[model.cls[cs + j]]
         w.p[j] = v
@@ -414,31 +425,44 @@ def _predict_measurements(io, model, bias, out, w, k, oC, oD, ny, ty, cy):
     return flags, n_miss, miss
 
 
+# how a step's update gain is made (:func:`_gain_choice`)
+GAIN_FULL, GAIN_ONLINE, GAIN_OUT, GAIN_SUBSET, GAIN_NONE = 0, 1, 2, 3, 4
+
+
 @njit(cache=True, nogil=True, inline="always")
-def _partial_flags(model, w, m, n_miss, miss, ny):
-    """A missing sensor: the update goes on from the others (online: any subset; steady: one
-    sensor out, when every corner of non-zero weight has its sensor-out gain), else it is
-    skipped. Returns the flags (FLAG_PARTIAL, + FLAG_HEALTH_HELD, or FLAG_NO_UPDATE; 0 when all
-    sensors are present)."""
+def _gain_choice(model, w, m, n_miss, miss, ny):
+    """How the update goes on with ``n_miss`` sensors missing (the last one ``miss``). Returns
+    (flags, GAIN_*): all present, the stored or online gain (GAIN_FULL); online, the reduced
+    update of the present sensors (GAIN_ONLINE, FLAG_PARTIAL); steady, one sensor out with its
+    stored gain at every corner of non-zero weight (GAIN_OUT, FLAG_PARTIAL, + FLAG_HEALTH_HELD
+    where the health estimates need it); else the update of the present sensors from the
+    interpolated steady-state P and R (GAIN_SUBSET, FLAG_PARTIAL | FLAG_HEALTH_HELD: how well
+    health is observed without them is unknown); else none (GAIN_NONE, FLAG_NO_UPDATE)."""
     if n_miss == 0:
-        return 0
-    partial = n_miss < ny and (model.online or (n_miss == 1 and model.ko_tab.shape[1] > 0))
-    hold = False
-    if partial and not model.online:
+        return 0, GAIN_FULL
+    if n_miss == ny:
+        return FLAG_NO_UPDATE, GAIN_NONE
+    if model.online:
+        return FLAG_PARTIAL, GAIN_ONLINE
+    if n_miss == 1 and model.ko_tab.shape[1] > 0:
+        ok, hold = True, False
         for c in range(m):
             if w.d_wts[c] != 0.0:
                 a = model.ko_avail[w.d_rows[c] * ny + miss]
-                partial &= a != 0
+                ok &= a != 0
                 hold |= a == 2
-    if partial:
-        return FLAG_PARTIAL | (FLAG_HEALTH_HELD if hold else 0)
-    return FLAG_NO_UPDATE
+        if ok:
+            return FLAG_PARTIAL | (FLAG_HEALTH_HELD if hold else 0), GAIN_OUT
+    if model.sub_tab.shape[1] > 0:
+        return FLAG_PARTIAL | FLAG_HEALTH_HELD, GAIN_SUBSET
+    return FLAG_NO_UPDATE, GAIN_NONE
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _online_gain(io, w, k, oC, oK, oR, ny, na):
-    """The gain from P (rows of the present sensors only) into the dynamics block's K, and
-    P <- P(k|k). Returns False when C P C^T + R is not positive definite (no update)."""
+def _subset_gain(io, w, P, R, oR, k, oC, oK, ny, na):
+    """The Kalman gain of the present sensors of sample k from the covariance P (na, na) and the
+    row-major R stored at R[oR:], into the dynamics block's K (columns of missing sensors zero),
+    and P <- P(k|k). Returns False when C P C^T + R is not positive definite (no update)."""
     mo = 0
     for i in range(ny):
         if np.isfinite(io.Y[k, i]):
@@ -447,10 +471,10 @@ def _online_gain(io, w, k, oC, oK, oR, ny, na):
             mi = 0
             for j in range(ny):
                 if np.isfinite(io.Y[k, j]):
-                    w.Ra[mo, mi] = w.dw[oR + i * ny + j]
+                    w.Ra[mo, mi] = R[oR + i * ny + j]
                     mi += 1
             mo += 1
-    if not correct(w.P, w.Ca[:mo], w.Ra[:mo, :mo], w.PCt[:, :mo], w.Sw[:mo, :mo], w.Lw[:mo, :mo],
+    if not correct(P, w.Ca[:mo], w.Ra[:mo, :mo], w.PCt[:, :mo], w.Sw[:mo, :mo], w.Lw[:mo, :mo],
                    w.Kw[:, :mo]):
         return False
     mi = 0
@@ -552,7 +576,7 @@ def _steps(io, model, grids, filt, bias, out, work):
         if state[oth] != th_prev or state[ode] != de_prev:
             th_prev, de_prev = state[oth], state[ode]
             correction_factors(model.ex, th_prev, de_prev, w.fac)
-        f, m, d_out = _interpolate(model, grids, filt, w, osl, cs)
+        f, m, d_out = _interpolate(io, model, grids, filt, w, k, osl, ost, cs)
         flags |= f
         bm, b_out = 0, 0
         if nb > 0:
@@ -566,7 +590,7 @@ def _steps(io, model, grids, filt, bias, out, work):
             _online_propagate(model, filt, w, first, m, oA, oQ, nx, na)
         _time_update(model, state, w, oA, oB, nx, nu, nq, ou, tu)
         f, n_miss, miss = _predict_measurements(io, model, bias, out, w, k, oC, oD, ny, ty, cy)
-        part = _partial_flags(model, w, m, n_miss, miss, ny)
+        part, how = _gain_choice(model, w, m, n_miss, miss, ny)
         flags |= f | part
         if nb > 0:  # the bias tables learn from complete updates only
             for c in range(nb):
@@ -574,13 +598,16 @@ def _steps(io, model, grids, filt, bias, out, work):
                 if n_miss == 0 and b_out == 0 and bias.learn[c]:
                     table_update(bias.vals[c], bias.counts[c], w.b_wts, w.b_rows, bm,
                                  w.res[bias.chan[c]], bias.law, bias.ratio, w.b_frac)
-        update = n_miss == 0 or (part & FLAG_PARTIAL) != 0
+        update = how != GAIN_NONE
         if model.online and update:  # the gain from P replaces the interpolated one
-            if not _online_gain(io, w, k, oC, oK, oR, ny, na):
-                update = False
-                flags = (flags & ~FLAG_PARTIAL) | FLAG_NO_UPDATE
-        elif n_miss > 0 and update:  # steady gains: the stored gain without the missing sensor
+            update = _subset_gain(io, w, w.P, w.dw, oR, k, oC, oK, ny, na)
+        elif how == GAIN_OUT:        # the stored gain without the missing sensor
             _sensor_out_gain(model, w, m, miss, oK, ny, na)
+        elif how == GAIN_SUBSET:     # the present sensors' gain from the steady P and R
+            interp_rows(model.sub_tab, w.d_wts, w.d_rows, m, w.pr)
+            update = _subset_gain(io, w, w.Ps, w.pr, na * na, k, oC, oK, ny, na)
+        if not update:
+            flags = (flags & ~(FLAG_PARTIAL | FLAG_HEALTH_HELD)) | FLAG_NO_UPDATE
         _measurement_update(model, grids, filt, w, update, oK, na, ny)
         _outputs(model, state, out, w, k, oF, oG, nx, nq, nz, tz, cz)
         out.flags[k] = flags
@@ -642,8 +669,12 @@ def workspace(ns, model, grids, filt, bias):
     nb = bias.vals.shape[0]
     nbd = bias.pidx.shape[0]
     no = na if model.online else 0    # online-covariance work arrays (empty otherwise)
-    mo = ny if model.online else 0
     ro = nx if model.online else 0
+    sub = model.sub_tab.shape[1] > 0   # steady update from any subset of sensors
+    ng = na if model.online or sub else 0    # the subset gain's work arrays
+    mo = ny if model.online or sub else 0
+    ns_ = na if sub else 0
+    pr = np.empty(model.sub_tab.shape[1])
     return Work(np.empty(model.trim_tab.shape[1]), np.empty(model.dyn_tab.shape[1]),
                 np.empty(nt), np.empty(nd), np.empty(1 << nt), np.empty(1 << nt, dtype=np.int64),
                 np.empty(1 << nd), np.empty(1 << nd, dtype=np.int64),
@@ -651,9 +682,10 @@ def workspace(ns, model, grids, filt, bias):
                 np.empty(ny), np.empty(ny), np.empty(nz), np.ones(model.ex.shape[0]),
                 np.empty(nbd), np.empty(1 << nbd), np.empty(1 << nbd, dtype=np.int64), np.empty(nbd),
                 np.zeros(max(nb, 1)), filt.cov[:no * no].reshape((no, no)),
-                np.empty((ro, no)), np.empty((mo, no)), np.empty((no, no)), np.empty((mo, mo)),
-                np.empty((no, mo)), np.empty((mo, mo)), np.empty((mo, mo)), np.empty((no, mo)),
-                np.empty((ro, no)), np.empty(1 << nd, dtype=np.int64), np.empty(model.ko_tab.shape[1]))
+                np.empty((ro, no)), np.empty((mo, ng)), np.empty((no, no)), np.empty((mo, mo)),
+                np.empty((ng, mo)), np.empty((mo, mo)), np.empty((mo, mo)), np.empty((ng, mo)),
+                np.empty((ro, no)), np.empty(1 << nd, dtype=np.int64), np.empty(model.ko_tab.shape[1]),
+                pr, pr[:ns_ * ns_].reshape((ns_, ns_)))
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -814,6 +846,8 @@ class PackedModel:
     z_labels: np.ndarray | None = None
     ko_tab: np.ndarray | None = None
     ko_avail: np.ndarray | None = None
+    sub_tab: np.ndarray | None = None
+    s_state: np.ndarray | None = None
 
     @classmethod
     def from_database(cls, db: GainDatabase, tune: bool = True, online: bool = False,
@@ -866,6 +900,10 @@ class PackedModel:
         na = nx + db.n("q")
         p_tab = np.ascontiguousarray(db.kalman["P"].reshape(dg.size, na * na) if online
                                      else np.zeros((1, 0)))
+        sub_tab = np.zeros((1, 0))    # steady, tuned, interpolated gains: any subset of sensors
+        if not online and tune and zones is None:
+            sub_tab = np.ascontiguousarray(np.concatenate(
+                [db.kalman["P"].reshape(dg.size, -1), db.kalman["R"].reshape(dg.size, -1)], axis=1))
         p = db.names["p"]
         t_pidx = np.array([p.index(n) for n in tg.names], dtype=np.int64)
         d_pidx = np.array([p.index(n) for n in dg.names], dtype=np.int64)
@@ -905,7 +943,9 @@ class PackedModel:
                    np.array([float(s) for _, _, s in db.schedule]), s_corr, chans,
                    db.correction.theta_channel if db.correction else None,
                    db.correction.delta_channel if db.correction else None, online, p_tab,
-                   z_gains, z_labels, ko_tab, ko_avail)
+                   z_gains, z_labels, ko_tab, ko_avail, sub_tab,
+                   np.array([db.names["x"].index(c) if c in db.names["x"] else -1 for c in chans],
+                            dtype=np.int64))
 
     def state_size(self) -> int:
         """Length of the filter state vector (:func:`state_layout`)."""
@@ -922,8 +962,10 @@ class PackedModel:
             raise DatabaseError(f"packed dynamics block of {self.dyn_tab.shape[1]} values, the kernel's "
                                 f"layout has {width}: PackedModel and block_layout disagree")
         return Model(self.trim_tab, self.dyn_tab, self.dims, self.ex, self.cls, self.s_scale, self.s_corr,
+                     self.s_state,
                      bool(self.online), self.p_tab, np.ascontiguousarray(V_pinv), self.z_gains,
-                     self.z_labels, np.ascontiguousarray(gate, dtype=np.float64), self.ko_tab, self.ko_avail)
+                     self.z_labels, np.ascontiguousarray(gate, dtype=np.float64), self.ko_tab, self.ko_avail,
+                     self.sub_tab)
 
     @staticmethod
     def grids(db: GainDatabase, t_pidx: np.ndarray, d_pidx: np.ndarray) -> Grids:

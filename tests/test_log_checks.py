@@ -112,7 +112,8 @@ def test_run_prints_every_flag_count_and_fails_a_log_without_estimates(tmp_path,
     db.save(tmp_path / "db.h5")
     good = log_of(db)
     dead = log_of(db)
-    dead.channels["y2"][:] = np.nan                 # a dead sensor: no measurement update at all
+    for c in db.names["y"]:                         # every sensor dead: no measurement update at all
+        dead.channels[c][:] = np.nan
     write_log(tmp_path / "logs" / "good.h5", good)
     write_log(tmp_path / "logs" / "dead.h5", dead)
     code = main(["run", str(tmp_path / "db.h5"), str(tmp_path / "logs"), "-o", str(tmp_path / "out"), "-j", "1"])
@@ -122,7 +123,7 @@ def test_run_prints_every_flag_count_and_fails_a_log_without_estimates(tmp_path,
                   "outside the dynamics grid", "before the first valid sample"):
         assert label in err
     assert "dead.h5" in err and "TOO FEW ESTIMATES: 0 of 300 samples had a measurement update; " \
-                                "missing or implausible: y2 100%" in err
+                                "missing or implausible: y2 100%, y1 100%, y0 100%" in err
     assert err.count("TOO FEW") == 1
     # provenance: the database and the log by path and digest
     with h5py.File(tmp_path / "out" / "good.estimates.h5") as f:

@@ -69,25 +69,33 @@ def test_steady_partial_update_equals_reference(kw):
     U, Y, S, TH, DE = inputs(db, n=200)
     Y[20:60, 0] = np.nan            # one sensor out: its sensor-out gain
     Y[80:90, 2] = np.inf
-    Y[100:110, [0, 2]] = np.nan     # two out: no update
+    Y[100:110, [0, 2]] = np.nan     # two out: the gain of the others from the steady P and R
+    Y[130:135] = np.nan             # all out: no update
     res = Estimator(db).run_arrays(U, Y, S, TH, DE)
     ref = ReferenceFilter(db).run(U, Y, S, TH, DE)
     assert_equals_reference(res, ref)
     assert np.all(res.flags[20:60] & FLAG_PARTIAL) and not np.any(res.flags[20:60] & FLAG_NO_UPDATE)
     assert np.all(res.flags[80:90] & FLAG_PARTIAL)
-    assert np.all(res.flags[100:110] & FLAG_NO_UPDATE) and not np.any(res.flags[100:110] & FLAG_PARTIAL)
+    assert np.all(res.flags[100:110] & FLAG_PARTIAL) and np.all(res.flags[100:110] & FLAG_HEALTH_HELD)
+    assert np.all(res.flags[130:135] & FLAG_NO_UPDATE) and not np.any(res.flags[130:135] & FLAG_PARTIAL)
     assert not np.any(res.flags[:20] & (FLAG_PARTIAL | FLAG_NO_UPDATE))
     # the tuners move during the partial updates (a skipped update would hold them)
     assert np.abs(np.diff(res.q_hat[20:60], axis=0)).max() > 0
 
 
-def test_without_sensor_out_gains_a_missing_sensor_skips_the_update():
-    db = names_db()                 # built before sensor-out gains: the old behaviour
+def test_without_sensor_out_gains_the_steady_covariance_gives_the_update():
+    """A database built before sensor-out gains: a missing sensor's update comes from the
+    present sensors' gain P C^T (C P C^T + R)^-1 with the interpolated steady-state P and R
+    (health held); zone gains have neither and skip the update."""
+    db = names_db()
     U, Y, S, TH, DE = inputs(db, n=60)
     Y[20:30, 0] = np.nan
     res = Estimator(db).run_arrays(U, Y, S, TH, DE)
-    assert np.all(res.flags[20:30] & FLAG_NO_UPDATE) and not np.any(res.flags & FLAG_PARTIAL)
+    assert np.all(res.flags[20:30] & FLAG_PARTIAL) and np.all(res.flags[20:30] & FLAG_HEALTH_HELD)
+    assert not np.any(res.flags & FLAG_NO_UPDATE)
     assert_equals_reference(res, ReferenceFilter(db).run(U, Y, S, TH, DE))
+    untuned = Estimator(db, "untuned").run_arrays(U, Y, S, TH, DE)   # tuners held: no subset gain
+    assert np.all(untuned.flags[20:30] & FLAG_NO_UPDATE)
 
 
 def test_online_reduced_update_equals_reference():
@@ -127,8 +135,8 @@ def test_dead_t48_from_takeoff_keeps_fn_error_within_1_5x_of_all_sensors():
 
 def test_points_without_a_sensor_out_gain_skip_the_update_around_them():
     """A point where the tuners are undetectable without sensor j has no gain without it
-    (out_status 2): between such a node and the others the update is skipped, elsewhere it goes
-    on; the reference filter does the same."""
+    (out_status 2): between such a node and the others the update comes from the steady P and R
+    (health held), elsewhere from the stored gain; the reference filter does the same."""
     db = with_sensor_out_gains(names_db(dyn_shape=(2, 3)), log=lambda *a: None)
     db.kalman["K_out"][0][1, 2] = 0.0
     db.kalman["out_status"][0][1, 2] = OUT_NONE
@@ -142,8 +150,8 @@ def test_points_without_a_sensor_out_gain_skip_the_update_around_them():
     for j, a in enumerate(dg.axes):
         near &= p[:, db.names["p"].index(a.name)] > a.values[-2]
     assert near.any() and (~near).any()
-    assert np.all(res.flags[near] & FLAG_NO_UPDATE)
-    assert np.all(res.flags[~near] & FLAG_PARTIAL)
+    assert np.all(res.flags[near] & FLAG_HEALTH_HELD) and np.all(res.flags & FLAG_PARTIAL)
+    assert not np.any(res.flags & FLAG_NO_UPDATE)
 
 
 def test_health_std_ratios_equal_the_iterated_riccati_recursion():
@@ -208,3 +216,54 @@ def test_dead_ps30_mid_flight_keeps_health_and_fn_errors_near_the_all_sensor_run
     assert np.all(part.flags[after] & FLAG_HEALTH_HELD)
     fn, h = errors(part)
     assert fn <= 1.2 * fn_all and h <= 1.2 * h_all
+
+
+@pytest.mark.parametrize("dead", [("T48", "P50"), ("T24", "T30", "P15")])
+def test_two_or_three_dead_sensors_keep_the_fn_error_near_the_all_sensor_run(dead):
+    """The degraded engine's demo flight with several sensors dead from half-way: the update
+    from the others (steady P and R) keeps the Fn error within 1.35x of the all-sensor run (the
+    filter open-loop, as before, gave 6x) and the health estimates held."""
+    from pwl.demo_data import demo_paths
+    from pwl.logs import Log, read_log
+
+    db_path, logs = demo_paths()
+    log = read_log([p for p in logs if "degraded" in p][0])
+    k0 = len(log) // 2
+    ch = dict(log.channels)
+    for c in dead:
+        ch[c] = np.where(np.arange(len(log)) >= k0, np.nan, ch[c])
+    est = Estimator(db_path)
+    after = np.arange(len(log)) >= k0
+
+    def fn_rms(r):
+        e = (r.channel("z_hat", "Fn") - log.truth["Fn"]) / log.truth["Fn"]
+        return np.sqrt(np.mean(e[after] ** 2))
+    full, part = est.run(log), est.run(Log(log.time, ch, log.units, attrs=log.attrs, path=log.path))
+    assert np.all(part.flags[after] & FLAG_PARTIAL) and np.all(part.flags[after] & FLAG_HEALTH_HELD)
+    assert fn_rms(part) <= 1.35 * fn_rms(full)
+
+
+def test_a_dead_schedule_sensor_is_replaced_by_its_estimate():
+    """Nf is a sensor, a state and the power scheduling channel (NfR = Nf / sqrt(theta) / 42).
+    Dead from half-way, its estimate schedules the model (held at its last value, the operating
+    point froze: Fn error 15x the all-sensor run) and the update goes on from the others: the
+    degraded flight's Fn error stays within 1.5x of the all-sensor run."""
+    from pwl.demo_data import demo_paths
+    from pwl.logs import Log, read_log
+    from pwl.runtime import FLAG_HELD_INPUT
+
+    db_path, logs = demo_paths()
+    log = read_log([p for p in logs if "degraded" in p][0])
+    after = np.arange(len(log)) >= len(log) // 2
+    dead = Log(log.time, dict(log.channels, Nf=np.where(after, np.nan, log.channels["Nf"])), log.units,
+               attrs=log.attrs, path=log.path)
+    est = Estimator(db_path)
+
+    def fn_rms(r):
+        e = (r.channel("z_hat", "Fn") - log.truth["Fn"]) / log.truth["Fn"]
+        return np.sqrt(np.mean(e[after] ** 2))
+    full, part = est.run(log), est.run(dead)
+    assert np.all(part.flags[after] & FLAG_HELD_INPUT) and np.all(part.flags[after] & FLAG_PARTIAL)
+    assert fn_rms(part) <= 1.5 * fn_rms(full)
+    nf = part.channel("x_hat", "Nf")[after]        # and the speed estimate follows the truth
+    assert np.sqrt(np.mean((nf / log.truth["Nf"][after] - 1) ** 2)) < 0.025   # measured 1.65 %

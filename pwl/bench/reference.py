@@ -31,7 +31,9 @@ class ReferenceFilter:
     R)^-1 by ``np.linalg.solve``, P = (I - K C) P every step. ``zones``: a ZoneTable on the
     dynamics grid; K is the centroid gain of the zone of the nearest node (per axis argmin).
     ``health_hold``: steady gains, one sensor out: h_hat repeats its last value where a node of
-    non-zero weight has a health standard-deviation ratio above it without that sensor."""
+    non-zero weight has a health standard-deviation ratio above it without that sensor. Steady
+    gains and sensors missing without a stored gain for the set (two or more, or none stored):
+    the present sensors' gain from the interpolated steady-state P and R, h_hat held."""
 
     def __init__(self, db: GainDatabase, bias=None, online: bool = False, zones=None,
                  health_hold: float = 3.0):
@@ -147,8 +149,16 @@ class ReferenceFilter:
                     np.any(ratio[out_j].reshape(len(w), -1)[w != 0] > self.health_hold))
             else:
                 out_ok = hold = False
-            if not have.any() or (not have.all() and not self.online and not out_ok):
+            # steady, sensors missing and no stored gain for the set: the present sensors' gain
+            # from the interpolated steady-state P and R (health held)
+            subset = have.any() and not have.all() and not self.online and not out_ok and self.zones is None
+            if not have.any() or (not have.all() and not self.online and not out_ok and not subset):
                 K = np.zeros((len(xm), len(r)))          # no update
+            elif subset:
+                C, R, P0 = M["C"][have], M["R"][np.ix_(have, have)], M["P"]
+                K = np.zeros((len(xm), len(r)))
+                K[:, have] = np.linalg.solve(C @ P0 @ C.T + R, C @ P0).T
+                hold = True
             elif self.online:
                 C, R = M["C"][have], M["R"][np.ix_(have, have)]
                 K = np.zeros((len(xm), len(r)))
