@@ -29,10 +29,8 @@ import signal
 import sys
 import threading
 import time
-import warnings
 import zipfile
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
-from contextlib import contextmanager
 
 import numpy as np
 
@@ -458,36 +456,36 @@ def build(spec: BuildSpec, out_path, *, plant=None, executor: Executor | None = 
     try:
         trim, trim_status, trim_errors = _trims(spec, ref, who, names, h0, executor, parts, progress)
         dyn, dyn_errors = _dynamics(spec, ref, who, names, h0, trim, hold, executor, parts, progress)
-    finally:
+        log(f"trims: {spec.trim_grid.size - len(trim_errors)}/{spec.trim_grid.size} converged"
+            + "".join(f"\n  failed {e}" for e in trim_errors.values()))
+        log(f"dynamics: {spec.dyn_grid.size - len(dyn_errors)}/{spec.dyn_grid.size} computed"
+            + "".join(f"\n  failed {e}" for e in dyn_errors.values()))
+
+        # ---- trims in corrected units; grid axes carry the plant's units
+        tg, dg = (Grid([Axis(a.name, a.values, plant.units.get(a.name, "")) for a in g.axes], g.policy)
+                  for g in (spec.trim_grid, spec.dyn_grid))
+        for i, p in enumerate(tg.nodes()):
+            try:
+                fac = proto.correction_factors(plant, plant.environment(p))
+            except Exception as e:  # the plant's own error, in this process
+                raise BuildError(f"{who}: correcting the trim failed at {_reason(point_label(tg, p), e)}") from e
+            for k in "xuyz":
+                trim[k].reshape(tg.size, -1)[i] /= fac[k]
+
+        # ---- noise covariances per dynamics point (corrected units: noise scales with the value)
+        pts = []
+        for i in range(dg.size):
+            d = dyn["point"][i]
+            pts.append({"mats": {m: dyn[m][i] for m in "ABCDFGLMN"},
+                        "Qx": np.diag((q_x * np.maximum(np.abs(d["trim_x"]), 1e-12)) ** 2),
+                        "Qh": np.diag(q_h ** 2),
+                        "R": np.diag((r_frac * np.maximum(np.abs(d["trim_y"]), 1e-12)) ** 2),
+                        "z_scale": np.maximum(np.abs(d["trim_z"]), 1e-9)})
+        fd = design_filter(pts, names, dg, dyn["status"], spec.n_tuners, spec.tuner_method,
+                           np.diag(h_sig ** 2), targets, progress, log, executor=executor)
+    finally:  # the pool serves phases 1-3 (tuner selection: tuners.envelope_mses)
         if own:
             executor.shutdown()
-    log(f"trims: {spec.trim_grid.size - len(trim_errors)}/{spec.trim_grid.size} converged"
-        + "".join(f"\n  failed {e}" for e in trim_errors.values()))
-    log(f"dynamics: {spec.dyn_grid.size - len(dyn_errors)}/{spec.dyn_grid.size} computed"
-        + "".join(f"\n  failed {e}" for e in dyn_errors.values()))
-
-    # ---- trims in corrected units; grid axes carry the plant's units
-    tg, dg = (Grid([Axis(a.name, a.values, plant.units.get(a.name, "")) for a in g.axes], g.policy)
-              for g in (spec.trim_grid, spec.dyn_grid))
-    for i, p in enumerate(tg.nodes()):
-        try:
-            fac = proto.correction_factors(plant, plant.environment(p))
-        except Exception as e:  # the plant's own error, in this process
-            raise BuildError(f"{who}: correcting the trim failed at {_reason(point_label(tg, p), e)}") from e
-        for k in "xuyz":
-            trim[k].reshape(tg.size, -1)[i] /= fac[k]
-
-    # ---- noise covariances per dynamics point (corrected units: noise scales with the value)
-    pts = []
-    for i in range(dg.size):
-        d = dyn["point"][i]
-        pts.append({"mats": {m: dyn[m][i] for m in "ABCDFGLMN"},
-                    "Qx": np.diag((q_x * np.maximum(np.abs(d["trim_x"]), 1e-12)) ** 2),
-                    "Qh": np.diag(q_h ** 2),
-                    "R": np.diag((r_frac * np.maximum(np.abs(d["trim_y"]), 1e-12)) ** 2),
-                    "z_scale": np.maximum(np.abs(d["trim_z"]), 1e-9)})
-    fd = design_filter(pts, names, dg, dyn["status"], spec.n_tuners, spec.tuner_method,
-                       np.diag(h_sig ** 2), targets, progress, log)
     D = dg.shape
 
     ex = proto.correction_exponents(plant)
@@ -526,20 +524,22 @@ def build(spec: BuildSpec, out_path, *, plant=None, executor: Executor | None = 
 
 
 def design_filter(pts, names, dg, dyn_status, n_tuners, method, Ph, targets, progress=False,
-                  log=print) -> dict:
+                  log=print, executor=None) -> dict:
     """Phases 3-4: tuners V by covariance analysis, then the steady-state gain at every point.
 
     pts: per dynamics point (flat order) dicts of discrete corrected ``mats`` A..N, ``Qx``,
     ``Qh`` (health random walk), ``R`` and ``z_scale``; dyn_status (flat) marks replaced points,
     which take their donor's gain. Returns V (nq, nh), q_names, metric, subset_metric,
     rms_error (target -> RMS error), K, P, Q, R stacked over the points, status and donor.
+    ``executor``: where the tuner selection's covariance analyses run (``tuners.envelope_mses``;
+    the same numbers as in this process, None).
     """
     nx, ny = len(names["x"]), len(names["y"])
     every = names["h"] + names["z"]
     bar = Progress("tuners", 1, progress)
-    with _quiet_undetectable_candidates():
-        V, metric, mse, ranking = select_subset(pts, n_tuners, Ph, targets,
-                                                lambda d, n: (setattr(bar, "total", n), bar.update(d)))
+    V, metric, mse, ranking = select_subset(pts, n_tuners, Ph, targets,
+                                            lambda d, n: (setattr(bar, "total", n), bar.update(d)),
+                                            executor=executor)
     bar.finish()
     subset_metric = metric
     q_names = [names["h"][int(np.argmax(r))] for r in V]
@@ -547,8 +547,8 @@ def design_filter(pts, names, dg, dyn_status, n_tuners, method, Ph, targets, pro
         + ", ".join(f"{[names['h'][j] for j in S]} {m:.4g}" for m, S in ranking[1:3]))
     if method == "optimal":
         bar = Progress("optimal", 40, progress)
-        with _quiet_undetectable_candidates():
-            V, metric, mse = optimal_tuners(pts, V, Ph, targets, progress=lambda d, n: bar.update(d))
+        V, metric, mse = optimal_tuners(pts, V, Ph, targets, progress=lambda d, n: bar.update(d),
+                                        executor=executor)
         bar.finish()
         q_names = [f"q{j + 1}" for j in range(n_tuners)]
         log(f"optimal tuners: metric {metric:.4g} (best subset {subset_metric:.4g})")
@@ -674,22 +674,6 @@ def kalman_arrays(fd: dict, D: tuple) -> dict:
     out["out_status"] = fd["out_status"].reshape((ny,) + D)
     out["out_h_ratio"] = fd["out_h_ratio"].reshape((ny,) + D + fd["out_h_ratio"].shape[2:])
     return out
-
-
-@contextmanager
-def _quiet_undetectable_candidates():
-    """Tuner selection without scipy's 'Input "a" has an eigenvalue pair whose sum is very close
-    to or exactly zero' RuntimeWarning, which every turbofan build printed.
-
-    It comes from the discrete Lyapunov solve of the covariance analysis (``tuners.point_mse``)
-    for a candidate set of tuners that leaves a health direction undetectable at some point: the
-    joint error dynamics then keep an eigenvalue at 1, the solve is ill-posed, and the
-    candidate's metric comes out infinite, so it is never chosen (on the demo spec, every
-    warning is of such a candidate). The warning says nothing about the result, so it is
-    silenced here, for this message only."""
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message='Input "a" has an eigenvalue pair', category=RuntimeWarning)
-        yield
 
 
 def point_label(grid, p) -> str:

@@ -24,6 +24,8 @@ the trim value); the metric is the sum of their mean squares, averaged over the 
 from __future__ import annotations
 
 import itertools
+import warnings
+from concurrent.futures import as_completed
 
 import numpy as np
 from scipy.linalg import solve_discrete_lyapunov
@@ -31,6 +33,7 @@ from scipy.linalg import solve_discrete_lyapunov
 from pwl.errors import PwlError
 from pwl.runtime import augment
 
+from . import threads
 from .kalman import GainError, steady_state_gain
 
 
@@ -93,43 +96,132 @@ def point_mse(mats: dict, V, Qx, Qh, R, Ph, z_scale, targets) -> np.ndarray:
     return mse
 
 
-def envelope_mse(points: list, V, Ph, targets) -> np.ndarray:
-    """Target mean squares averaged over ``points``: dicts with mats, Qx, Qh, R, z_scale."""
-    acc = np.zeros(len(targets))
-    for pt in points:
-        acc += point_mse(pt["mats"], V, pt["Qx"], pt["Qh"], pt["R"], Ph, pt["z_scale"], targets)
+#: point_mse calls per task of an evaluation through an executor (at most): 0.07-0.1 s of work
+#: (1.6 ms a call on the 2-core test machine), so that pickling a task's points and tuner
+#: matrices and its round trip (about 1 ms to a process pool, a few ms to Dask) cost 1-5 %,
+#: while a batch still balances over the workers (the 22 evaluations of a gradient on 110
+#: points: 55 tasks of 44 calls; the 120 subsets of 7 in 10: 220 tasks of 56-64)
+TASK_CALLS = 64
+
+#: finite-difference step of the optimal tuners' gradient, in the units of W (tuner weights)
+FD_STEP = 1e-5
+
+
+def point_mses(points: list, Vs: list, Ph, targets) -> np.ndarray:
+    """(nV, npoints, ntargets) :func:`point_mse` of every tuner matrix in ``Vs`` (each (nq, nh))
+    at every point (dicts with mats, Qx, Qh, R, z_scale): the task an executor runs.
+
+    Without scipy's 'Input "a" has an eigenvalue pair whose sum is very close to or exactly zero'
+    RuntimeWarning (here, so also in a worker process): the discrete Lyapunov solve warns for a
+    candidate V that leaves a health direction undetectable at some point (the joint error
+    dynamics keep an eigenvalue at 1); that candidate's metric is infinite and never chosen."""
+    out = np.empty((len(Vs), len(points), len(targets)))
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message='Input "a" has an eigenvalue pair', category=RuntimeWarning)
+        for a, V in enumerate(Vs):
+            for i, pt in enumerate(points):
+                out[a, i] = point_mse(pt["mats"], V, pt["Qx"], pt["Qh"], pt["R"], Ph, pt["z_scale"], targets)
+    return out
+
+
+def task_blocks(n_v: int, n_points: int, task_calls: int = TASK_CALLS) -> list:
+    """Cover the (n_v, n_points) evaluations with tasks of about ``task_calls`` each: a list of
+    (V slice, point slice); points are split in near-equal contiguous chunks (a task ships only
+    its own points), the tuner matrices in blocks when one point already fills a task."""
+    per_task = max(1, min(n_points, task_calls // max(n_v, 1)))
+    chunks = -(-n_points // per_task)
+    edges = np.linspace(0, n_points, chunks + 1).round().astype(int)
+    v_block = max(1, task_calls // max(int(np.diff(edges).max()), 1))
+    return [(slice(v, min(v + v_block, n_v)), slice(int(a), int(b)))
+            for a, b in zip(edges[:-1], edges[1:]) for v in range(0, n_v, v_block)]
+
+
+def _per_point(points, Vs, Ph, targets, executor, progress):
+    """(nV, npoints, ntargets) of :func:`point_mses`, in this process (``executor`` None) or
+    as tasks of :func:`task_blocks` through ``executor``; ``progress(done, total)`` per task."""
+    out = np.empty((len(Vs), len(points), len(targets)))
+    blocks = task_blocks(len(Vs), len(points))
+    if executor is None:
+        for k, (vs, ps) in enumerate(blocks):
+            out[vs, ps] = point_mses(points[ps], Vs[vs], Ph, targets)
+            if progress:
+                progress(k + 1, len(blocks))
+        return out
+    futs = {executor.submit(threads.call, point_mses, points[ps], Vs[vs], Ph, targets): (vs, ps)
+            for vs, ps in blocks}
+    for k, fut in enumerate(as_completed(futs)):
+        vs, ps = futs[fut]
+        out[vs, ps] = fut.result()
+        if progress:
+            progress(k + 1, len(blocks))
+    return out
+
+
+def envelope_mses(points: list, Vs: list, Ph, targets, executor=None, progress=None) -> np.ndarray:
+    """(nV, ntargets) target mean squares of each tuner matrix in ``Vs`` averaged over ``points``.
+
+    ``executor``: a ``concurrent.futures.Executor`` (process pool, Dask ``client.get_executor()``)
+    to spread the evaluations over, or None (here). Each point's contribution is added in point
+    order whatever ran it, so the result is bit-for-bit the serial one."""
+    points, Vs = list(points), [np.atleast_2d(V) for V in Vs]
+    per = _per_point(points, Vs, Ph, targets, executor, progress)
+    acc = np.zeros((len(Vs), len(targets)))
+    for i in range(len(points)):
+        acc += per[:, i]
     return acc / len(points)
 
 
-def select_subset(points, nq: int, Ph, targets, progress=None):
+def envelope_mse(points: list, V, Ph, targets, executor=None) -> np.ndarray:
+    """(ntargets,) target mean squares of V averaged over ``points``: dicts with mats, Qx, Qh, R,
+    z_scale (see :func:`envelope_mses` for ``executor``)."""
+    return envelope_mses(points, [V], Ph, targets, executor)[0]
+
+
+def select_subset(points, nq: int, Ph, targets, progress=None, executor=None):
     """Exhaustive subset selection: the nq health parameters whose tuners minimise the metric.
 
+    Every subset is scored in one batch (through ``executor`` when given: the same numbers).
     Returns (V (nq, nh) selection matrix, metric, per-target mse, ranking list of (metric, subset)).
     """
     nh = Ph.shape[0]
     if not 1 <= nq <= nh:
         raise TunerError(f"number of tuners {nq} must be in 1..{nh}")
     subsets = list(itertools.combinations(range(nh), nq))
-    ranking = []
-    for i, S in enumerate(subsets):
-        V = np.eye(nh)[list(S)]
-        mse = envelope_mse(points, V, Ph, targets)
-        ranking.append((float(mse.sum()), S, mse))
-        if progress:
-            progress(i + 1, len(subsets))
-    ranking.sort(key=lambda r: r[0])
+    n = len(subsets)
+    tick = (lambda d, total: progress(d * n // total, n)) if progress else None
+    mses = envelope_mses(points, [np.eye(nh)[list(S)] for S in subsets], Ph, targets, executor, tick)
+    ranking = sorted(((float(mse.sum()), S, mse) for S, mse in zip(subsets, mses)), key=lambda r: r[0])
     best = ranking[0]
     if not np.isfinite(best[0]):
         raise TunerError(f"no subset of {nq} tuners gives a detectable system at every point")
     return np.eye(nh)[list(best[1])], best[0], best[2], [(m, S) for m, S, _ in ranking]
 
 
-def optimal_tuners(points, V0, Ph, targets, maxiter: int = 40, progress=None):
+def fd_gradient(costs, w, step: float = FD_STEP):
+    """Forward-difference gradient of a scalar cost at ``w`` (n,): ``costs`` maps a list of
+    points to their costs in one batch (n + 1 here: w and each w + step e_i). The steps are
+    scipy's '2-point' ones with an absolute step (dx = (w_i + step) - w_i), so L-BFGS-B follows
+    the same path as with its own finite differences. Returns (cost at w, gradient (n,))."""
+    w = np.asarray(w, dtype=np.float64)
+    xs = [w]
+    for i in range(w.size):
+        x = w.copy()
+        x[i] = w[i] + step
+        xs.append(x)
+    f = np.asarray(costs(xs), dtype=np.float64)
+    dx = (w + step) - w
+    return float(f[0]), (f[1:] - f[0]) / dx
+
+
+def optimal_tuners(points, V0, Ph, targets, maxiter: int = 40, progress=None, executor=None):
     """Optimal tuner selection: a dense V minimising the same metric over the envelope.
 
     The metric depends on the row space of V only (q -> T q leaves the estimates unchanged), so
     V is parametrised as V[:, S] = I, V[:, rest] = W with S the columns of the starting subset
-    ``V0`` (its metric is the starting value: the result is never worse). Returns (V, metric, mse).
+    ``V0`` (its metric is the starting value: the result is never worse). L-BFGS-B on a
+    forward-difference gradient (:func:`fd_gradient`) whose nq (nh - nq) + 1 evaluations go
+    through ``executor`` in one batch when given (the same numbers as without).
+    Returns (V, metric, mse).
     """
     from scipy.optimize import minimize
 
@@ -143,15 +235,12 @@ def optimal_tuners(points, V0, Ph, targets, maxiter: int = 40, progress=None):
         V[:, rest] = w.reshape(nq, len(rest))
         return V
 
-    calls = [0]
-
-    def cost(w):
-        calls[0] += 1
-        m = float(envelope_mse(points, make(w), Ph, targets).sum())
-        return m if np.isfinite(m) else 1e30
+    def costs(ws):
+        mse = envelope_mses(points, [make(w) for w in ws], Ph, targets, executor)
+        return [m if np.isfinite(m) else 1e30 for m in (float(r.sum()) for r in mse)]
 
     w0 = np.zeros(nq * len(rest))
-    f0 = cost(w0)
+    f0 = costs([w0])[0]
     it = [0]
 
     def cb(_w):
@@ -159,9 +248,9 @@ def optimal_tuners(points, V0, Ph, targets, maxiter: int = 40, progress=None):
         if progress:
             progress(it[0], maxiter)
 
-    res = minimize(cost, w0, method="L-BFGS-B", callback=cb,
-                   options={"maxiter": maxiter, "eps": 1e-5})
+    res = minimize(lambda w: fd_gradient(costs, w), w0, jac=True, method="L-BFGS-B", callback=cb,
+                   options={"maxiter": maxiter})
     w = res.x if res.fun <= f0 else w0
     V = make(w)
-    mse = envelope_mse(points, V, Ph, targets)
+    mse = envelope_mse(points, V, Ph, targets, executor)
     return V, float(mse.sum()), mse

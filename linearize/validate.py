@@ -4,11 +4,19 @@ The piecewise-linear model runs open loop (every Kalman gain zero: no filtering)
 runtime kernel itself, fed with what a log of the nonlinear plant would hold:
 
 - steady state: at random off-grid operating points the plant is trimmed and the
-  piecewise-linear model is run to steady state on the plant's inputs; errors of y and z in % of
-  the plant's values;
-- transient: from a trim at mid power the fuel (every input) steps by ``step`` (5 %); the plant
-  is integrated with its own unbalanced solve (RK4 at the database's dt) and the model follows
-  open loop on the same inputs and scheduling channels; errors in % of the plant's values.
+  piecewise-linear model is run to steady state on the plant's inputs;
+- trim tables: at random off-grid points the trims interpolated at the scheduling variables the
+  runtime computes from the plant's channels, un-corrected, against the plant's own trim;
+- both on a standard day and, for a plant whose environment carries the ambient temperature
+  offset (the turbofan's [alt, Mach, dTamb]), on hot and cold days (``dT`` K): the runtime
+  schedules on corrected speed and corrects with theta/delta, so these test the correction;
+- transient: from a trim the fuel (every input) steps by ``step`` (5 %); the plant is integrated
+  with its own unbalanced solve (RK4 at the database's dt) and the model follows open loop on
+  the same inputs and scheduling channels; at the middle of the envelope and at several values
+  of one scheduling variable (altitudes).
+
+Errors are in % of the plant's value, except stall margins (channels named ``Sm...``, themselves
+in %): their errors are absolute, in percentage points (:func:`output_errors`).
 """
 from __future__ import annotations
 
@@ -17,10 +25,81 @@ import copy
 import numpy as np
 
 from pwl.database import GainDatabase
+from pwl.errors import PwlError
 from pwl.estimator import Estimator
 from pwl.logs import Log
 
 from . import plant as proto
+
+#: stall margins: channels whose name starts with this; their errors are in percentage points
+MARGIN_PREFIX = "Sm"
+#: percentage points per unit of a stall margin's value ("%" as stored; "-" a fraction)
+POINTS_PER_UNIT = {"%": 1.0, "-": 100.0}
+#: the days of ``pwl validate --days``: sign of the ambient temperature offset dT
+DAYS = {"std": 0.0, "hot": 1.0, "cold": -1.0}
+
+
+class ValidateError(PwlError, ValueError):
+    """A check the plant or the database cannot do (names what is missing)."""
+
+
+def is_margin(name: str) -> bool:
+    """True for a stall margin channel (errors in percentage points, not % of value)."""
+    return name.startswith(MARGIN_PREFIX)
+
+
+def output_errors(names, units, model, truth) -> np.ndarray:
+    """Errors (..., k) of ``model`` against the plant's ``truth`` (same shape, channels ``names``
+    with ``units`` last): 100 (model - truth) / |truth| (% of the plant's value), except stall
+    margins (:func:`is_margin`): model - truth in percentage points (absolute; a margin near
+    zero has no meaningful relative error)."""
+    model = np.asarray(model, dtype=np.float64)
+    truth = np.asarray(truth, dtype=np.float64)
+    err = 100.0 * (model - truth) / np.abs(truth)
+    for j, (n, u) in enumerate(zip(names, units)):
+        if is_margin(n):
+            if u not in POINTS_PER_UNIT:
+                raise ValidateError(f"stall margin {n}: unit {u!r}, expected one of {sorted(POINTS_PER_UNIT)}")
+            err[..., j] = POINTS_PER_UNIT[u] * (model[..., j] - truth[..., j])
+    return err
+
+
+def error_unit(name: str) -> str:
+    """The unit of :func:`output_errors` for channel ``name``: "%" or "points"."""
+    return "points" if is_margin(name) else "%"
+
+
+def outputs(plant) -> tuple[list, list]:
+    """(names, units) of the plant's sensed then unmeasured outputs: the validated channels."""
+    names = list(plant.y_names) + list(plant.z_names)
+    return names, [plant.units[n] for n in names]
+
+
+def ambient_offset_index(plant, env) -> int | None:
+    """Index of the ambient temperature offset (dTamb, K) in the plant's environment vector
+    ``env``: the position of "dTamb" in the plant's optional ``env_names``, else the Plant
+    protocol's turbofan layout [alt, Mach, dTamb] when the plant's units name "dTamb" and env
+    has three entries; None when the plant has no such entry (no hot or cold days)."""
+    names = getattr(plant, "env_names", None)
+    if names is not None:
+        return list(names).index("dTamb") if "dTamb" in names else None
+    if "dTamb" in getattr(plant, "units", {}) and len(env) == 3:
+        return 2
+    return None
+
+
+def day_environment(plant, p, dT: float = 0.0) -> np.ndarray:
+    """The plant's environment at scheduling point ``p`` with the ambient temperature ``dT`` K
+    off its standard day (0: ``plant.environment(p)`` itself)."""
+    env = np.array(plant.environment(p), dtype=np.float64)
+    if dT == 0.0:
+        return env
+    i = ambient_offset_index(plant, env)
+    if i is None:
+        raise ValidateError(f"plant {getattr(plant, 'name', type(plant).__name__)}: its environment "
+                            "has no ambient temperature offset (dTamb), so no hot or cold day")
+    env[i] += dT
+    return env
 
 
 def open_loop(db: GainDatabase) -> Estimator:
@@ -33,6 +112,7 @@ def open_loop(db: GainDatabase) -> Estimator:
 
 
 def plant_of(db: GainDatabase):
+    """The database's plant, made as the build made it (attrs ``model``, ``model_parameters``)."""
     return proto.load_plant(db.attrs["model"], db.attrs.get("model_parameters", {}))
 
 
@@ -62,13 +142,15 @@ def random_points(grid, n: int, seed: int, margin: float = 0.02) -> np.ndarray:
     return lo + margin * span + rng.random((n, grid.ndim)) * (1 - 2 * margin) * span
 
 
-def plant_trims(db: GainDatabase, plant, n: int, seed: int, failed: list):
+def plant_trims(db: GainDatabase, plant, n: int, seed: int, failed: list, dT: float = 0.0):
     """(p, env, trim) of the plant at n random off-grid points of the trim grid (which spans every
-    scheduling variable), at the database's reference health; points whose trim fails are
-    appended to ``failed`` as (p, message) and skipped (reported, not hidden)."""
+    scheduling variable), at the database's reference health, on a day ``dT`` K off standard
+    (:func:`day_environment`); points whose trim fails are appended to ``failed`` as
+    (p, message) and skipped (reported, not hidden). The same seed gives the same points on
+    every day."""
     h = db.tuner["h_ref"]
     for p in random_points(db.trim_grid, n, seed):
-        env = plant.environment(p)
+        env = day_environment(plant, p, dT)
         try:
             t = plant.trim(p, h, env)
         except Exception as e:  # the plant's own error
@@ -77,51 +159,59 @@ def plant_trims(db: GainDatabase, plant, n: int, seed: int, failed: list):
         yield p, env, t
 
 
-def steady_state(db: GainDatabase, plant=None, n: int = 20, seed: int = 0, settle_steps: int = 3000):
-    """Percent errors (n_points, ny + nz) of the open-loop model at random off-grid points, the
+def steady_state(db: GainDatabase, plant=None, n: int = 20, seed: int = 0, settle_steps: int = 3000,
+                 dT: float = 0.0):
+    """Errors (n_points, ny + nz) of the open-loop model at random off-grid points on a day
+    ``dT`` K off standard (% of value; stall margins in points: :func:`output_errors`), the
     points (n, np), and any points where the plant's trim failed (skipped)."""
     plant = plant or plant_of(db)
+    names, units = outputs(plant)
     est = open_loop(db)
     pts, errs, failed = [], [], []
-    for p, env, t in plant_trims(db, plant, n, seed, failed):
+    for p, env, t in plant_trims(db, plant, n, seed, failed, dT):
         rep = lambda v: np.repeat(np.asarray(v, dtype=np.float64)[None, :], settle_steps, axis=0)  # noqa: E731
         log = log_of(plant, db, p, env, rep(t["x"]), rep(t["u"]), rep(t["y"]), rep(t["z"]))
         res = est.run(log)
         model = np.concatenate([res.y_hat[-1], res.z_hat[-1]])
-        truth = np.concatenate([t["y"], t["z"]])
-        errs.append(100.0 * (model - truth) / np.abs(truth))
+        errs.append(output_errors(names, units, model, np.concatenate([t["y"], t["z"]])))
         pts.append(p)
-    return np.array(errs), np.array(pts), failed
+    return np.array(errs).reshape(-1, len(names)), np.array(pts), failed
 
 
-def scheduled_trims(db: GainDatabase, plant=None, n: int = 200, seed: int = 1):
-    """Percent errors (n_points, ny + nz) of the interpolated trims at random off-grid points,
-    matched on the scheduling variables the runtime computes from the plant's own channels (its
-    corrected fan speed, not its fuel flow): the plant is trimmed at p, the runtime's p is
-    formed from that trim's log channels (:meth:`GainDatabase.operating_point`), the trim tables
-    are interpolated there and un-corrected, and compared with the plant's y and z. This is the
-    offset every estimate inherits at steady state. Returns (errors, points, failed)."""
+def runtime_point(db: GainDatabase, log: Log) -> np.ndarray:
+    """(n, np) scheduling variables the runtime computes from the log's channels (the schedule
+    channels, corrected with the log's theta/delta channels), and theta, delta (n,)."""
+    S = np.column_stack([log.channels[c] for c, _, _ in db.schedule])
+    th = de = np.ones(S.shape[0])
+    if db.correction is not None:
+        th = log.channels[db.correction.theta_channel] / db.correction.T_std
+        de = log.channels[db.correction.delta_channel] / db.correction.P_std
+    return db.operating_point(S, th, de), th, de
+
+
+def scheduled_trims(db: GainDatabase, plant=None, n: int = 200, seed: int = 1, dT: float = 0.0):
+    """Errors (n_points, ny + nz) of the interpolated trims at random off-grid points on a day
+    ``dT`` K off standard, matched on the scheduling variables the runtime computes from the
+    plant's own channels (its corrected fan speed, not its fuel flow): the plant is trimmed at
+    p, the runtime's p is formed from that trim's log channels (:func:`runtime_point`), the
+    trim tables are interpolated there and un-corrected, and compared with the plant's y and z
+    (% of value; stall margins in points). This is the offset every estimate inherits at steady
+    state. Returns (errors, points, failed)."""
     from pwl.interp import interpolate
 
     plant = plant or plant_of(db)
-    chans = [c for c, _, _ in db.schedule]
+    names, units = outputs(plant)
     pts, errs, failed = [], [], []
-    for p, env, t in plant_trims(db, plant, n, seed, failed):
+    for p, env, t in plant_trims(db, plant, n, seed, failed, dT):
         log = log_of(plant, db, p, env, *(np.asarray(t[k], dtype=np.float64)[None, :] for k in "xuyz"))
-        S = np.column_stack([log.channels[c] for c in chans])
-        th = de = np.ones(1)
-        if db.correction is not None:
-            th = log.channels[db.correction.theta_channel] / db.correction.T_std
-            de = log.channels[db.correction.delta_channel] / db.correction.P_std
-        q = db.operating_point(S, th, de)[0]
-        at = [q[db.names["p"].index(a.name)] for a in db.trim_grid.axes]
+        q, th, de = runtime_point(db, log)
+        at = [q[0, db.names["p"].index(a.name)] for a in db.trim_grid.axes]
         model = np.concatenate([
             interpolate(db.trim_grid, db.trim[k], np.array(at))[0]
             * db.correction_factor(db.names[k], th, de)[0] for k in "yz"])
-        truth = np.concatenate([t["y"], t["z"]])
-        errs.append(100.0 * (model - truth) / np.abs(truth))
+        errs.append(output_errors(names, units, model, np.concatenate([t["y"], t["z"]])))
         pts.append(p)
-    return np.array(errs), np.array(pts), failed
+    return np.array(errs).reshape(-1, len(names)), np.array(pts), failed
 
 
 def simulate(plant, x0, U, h, env, dt: float):
@@ -146,15 +236,32 @@ def simulate(plant, x0, U, h, env, dt: float):
     return X, Y, Z
 
 
+def step_point(db: GainDatabase, axis: str | None = None, value: float | None = None) -> np.ndarray:
+    """The transient's trim point (np,): the middle of the trim grid box, 1e-3 off it (off-grid),
+    with scheduling variable ``axis`` (e.g. "alt") set to ``value`` when given (within the
+    grid's range, else a :class:`ValidateError` naming both)."""
+    p = np.array([0.5 * (a.lo + a.hi) for a in db.trim_grid.axes]) + 1e-3
+    if axis is None:
+        return p
+    names = [a.name for a in db.trim_grid.axes]
+    if axis not in names:
+        raise ValidateError(f"the trim grid has no axis {axis!r} (axes {names})")
+    ax = db.trim_grid.axes[names.index(axis)]
+    if not ax.lo <= value <= ax.hi:
+        raise ValidateError(f"{axis}={value:g} is outside the trim grid's {axis} range {ax.lo:g}..{ax.hi:g}")
+    p[names.index(axis)] = value
+    return p
+
+
 def fuel_step(db: GainDatabase, plant=None, p=None, step: float = 0.05, seconds: float = 8.0,
               t_step: float = 1.0):
     """Open-loop model vs plant after an input step of ``step`` (fraction) at ``t_step`` s from a
-    trim at ``p`` (default: the middle of the trim grid box, off-grid). Returns a dict with
-    time, the plant's and the model's y and z (n, .), their names and units, and the percent
-    errors."""
+    trim at ``p`` (default: :func:`step_point`). Returns a dict with time (n,) s, the plant's
+    ("truth") and the model's y and z (n, ny + nz), their names and units, ``p``, and the errors
+    (n, ny + nz; % of value, stall margins in points: :func:`output_errors`)."""
     plant = plant or plant_of(db)
     if p is None:
-        p = np.array([0.5 * (a.lo + a.hi) for a in db.trim_grid.axes]) + 1e-3
+        p = step_point(db)
     env = plant.environment(p)
     h = db.tuner["h_ref"]
     t = plant.trim(p, h, env)
@@ -166,6 +273,21 @@ def fuel_step(db: GainDatabase, plant=None, p=None, step: float = 0.05, seconds:
     res = open_loop(db).run(log_of(plant, db, p, env, X, U, Y, Z))
     truth = np.hstack([Y, Z])
     model = np.hstack([res.y_hat, res.z_hat])
-    names = list(plant.y_names) + list(plant.z_names)
-    return {"time": time, "truth": truth, "model": model, "p": p, "names": names,
-            "units": [plant.units[n] for n in names], "error": 100.0 * (model - truth) / np.abs(truth)}
+    names, units = outputs(plant)
+    return {"time": time, "truth": truth, "model": model, "p": p, "names": names, "units": units,
+            "error": output_errors(names, units, model, truth)}
+
+
+def transients(db: GainDatabase, plant=None, axis: str = "alt", values=(0.0, 6000.0, 12000.0),
+               step: float = 0.05, seconds: float = 8.0) -> list[dict]:
+    """:func:`fuel_step` from a trim at each of ``values`` of scheduling variable ``axis`` (the
+    other variables at the middle of the envelope, :func:`step_point`); each result also holds
+    ``rms`` and ``max`` (ny + nz,): RMS and largest |error| over the run (% / points)."""
+    plant = plant or plant_of(db)
+    out = []
+    for v in values:
+        tr = fuel_step(db, plant, step_point(db, axis, float(v)), step=step, seconds=seconds)
+        tr["rms"] = np.sqrt(np.mean(tr["error"] ** 2, axis=0))
+        tr["max"] = np.abs(tr["error"]).max(axis=0)
+        out.append(tr)
+    return out

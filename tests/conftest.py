@@ -68,3 +68,22 @@ def make_database(seed=0, nx=2, nu=1, ny=3, nz=2, nh=4, nq=2, trim_shape=(3, 4),
 @pytest.fixture
 def synthetic_db():
     return make_database()
+
+
+@pytest.fixture
+def figures(monkeypatch):
+    """The matplotlib figures a plot function closes (kept open for inspection)."""
+    plt = pytest.importorskip("matplotlib.pyplot")
+    close, kept = plt.close, []
+    monkeypatch.setattr(plt, "close", kept.append)
+    yield kept
+    for fig in kept:
+        close(fig)
+
+
+@pytest.fixture
+def unwritable(tmp_path):
+    """A plot path whose folder can be neither found nor created (its parent is a file)."""
+    f = tmp_path / "a_file"
+    f.write_text("")
+    return str(f / "sub" / "x.png")

@@ -1,9 +1,9 @@
 """What a new user of the command line meets: output paths checked before any computation, fixed
-legend places (``loc="best"`` is slow on long lines), ``pwl validate``'s pass/fail limit, ``pwl
-trend`` in percent and in flight-time order, and a help text stating every option's default."""
+legend places (``loc="best"`` is slow on long lines), ``pwl trend`` in percent and in flight-time
+order, and a help text stating every option's default (``pwl validate``'s limits and verdicts:
+tests/test_validate.py)."""
 import argparse
 import ast
-import copy
 import importlib
 import os
 
@@ -21,25 +21,6 @@ ROOT = os.path.join(os.path.dirname(__file__), "..")
 #: the modules that make plots (and so legends)
 PLOTTING = ["pwl/cli/demo.py", "pwl/cli/validate.py", "pwl/cli/bias.py", "pwl/cli/biastable.py",
             "pwl/cli/tables.py", "pwl/cli/zones.py", "pwl/trending.py"]
-
-
-@pytest.fixture
-def figures(monkeypatch):
-    """The matplotlib figures a plot function closes (kept open for inspection)."""
-    plt = pytest.importorskip("matplotlib.pyplot")
-    close, kept = plt.close, []
-    monkeypatch.setattr(plt, "close", kept.append)
-    yield kept
-    for fig in kept:
-        close(fig)
-
-
-@pytest.fixture
-def unwritable(tmp_path):
-    """A plot path whose folder can be neither found nor created (its parent is a file)."""
-    f = tmp_path / "a_file"
-    f.write_text("")
-    return str(f / "sub" / "x.png")
 
 
 # ---- 1. fixed legend places -------------------------------------------------------------------
@@ -130,61 +111,7 @@ def test_every_output_path_is_checked_first(argv, capsys, unwritable):
     assert "cannot create the folder" in err and os.path.dirname(unwritable) in err
 
 
-# ---- 3. pwl validate: a limit, a verdict, labelled plot ---------------------------------------
-def test_validate_passes_the_shipped_database(capsys):
-    assert main(["validate", DB, "-n", "8", "--trim-points", "20"]) == 0
-    out = capsys.readouterr().out
-    assert "limit 2 %" in out and "passed" in out and "FAILED" not in out
-    assert "trim tables at 20 random off-grid points" in out
-    # a tighter limit fails on the trim tables (their interpolation error is ~1 % on this grid)
-    assert main(["validate", DB, "-n", "2", "--trim-points", "20", "--max-error", "0.5"]) == 1
-    assert "FAILED trim tables:" in capsys.readouterr().out
-
-
-def test_validate_fails_a_database_with_a_corrupted_matrix(tmp_path, capsys):
-    from pwl.database import GainDatabase
-
-    db = GainDatabase.open(DB)
-    bad = copy.copy(db)
-    bad.dynamics = dict(db.dynamics, G=2.0 * db.dynamics["G"])   # unmeasured outputs' input matrix
-    path = tmp_path / "bad.h5"
-    bad.save(path)
-    assert main(["validate", str(path), "-n", "4"]) == 1
-    out = capsys.readouterr().out
-    assert "FAILED transient:" in out and "> 2 % (by " in out
-
-
-def test_validate_failures_name_the_check_the_output_and_the_excess():
-    from pwl.cli.validate import failures
-
-    errs = np.array([[0.5, 1.0, 0.1], [-3.5, np.nan, 0.2]])
-    out = failures("steady state", ["Fn", "T40", "Nf"], errs, 2.0)
-    assert out == ["steady state: Fn max |error| 3.500 % > 2 % (by 1.500 %)",
-                   "steady state: T40 error is NaN (limit 2 %)"]
-    assert failures("transient", ["Fn", "T40", "Nf"], errs[:1], 2.0) == []
-
-
-def test_validate_help_states_the_limit(capsys):
-    with pytest.raises(SystemExit):
-        main(["validate", "-h"])
-    out = " ".join(capsys.readouterr().out.split())
-    assert "--max-error PCT" in out and "default 2" in out and "% of the plant's value" in out
-    assert "exit status 1" in out
-
-
-def test_validate_plot_has_axis_labels_with_units(figures):
-    from pwl.cli.validate import _plot
-
-    t = np.arange(10) * 0.015
-    tr = {"time": t, "names": ["Nf", "T48"], "units": ["rpm", "K"],
-          "truth": np.ones((10, 2)), "model": np.ones((10, 2))}
-    _plot(tr, os.devnull)
-    axes = [ax for ax in figures[0].axes if ax.axison]
-    assert [ax.get_ylabel() for ax in axes] == ["Nf, rpm", "T48, K"]
-    assert all(ax.get_xlabel() == "time, s" for ax in axes)
-
-
-# ---- 4. pwl trend: percent and time order -----------------------------------------------------
+# ---- 3. pwl trend: percent and time order -----------------------------------------------------
 def test_trend_prints_the_diagnosis_in_percent():
     from pwl.diagnose import Decision
     from pwl.trending import EngineTrend, readable_detail
@@ -236,7 +163,7 @@ def test_trend_help_states_the_exit_status(capsys):
     assert "exit status 1 when a fault is detected" in out and "percent" in out
 
 
-# ---- 5. every option says what it is and its default ------------------------------------------
+# ---- 4. every option says what it is and its default ------------------------------------------
 def _options(parser, where):
     for a in parser._actions:
         if isinstance(a, argparse._SubParsersAction):
