@@ -133,7 +133,7 @@ def test_dead_t48_from_takeoff_keeps_fn_error_within_1_5x_of_all_sensors():
     assert fn_rms(part) <= 1.5 * fn_rms(full)
 
 
-def test_points_without_a_sensor_out_gain_skip_the_update_around_them():
+def test_points_without_a_sensor_out_gain_use_the_steady_covariance_around_them():
     """A point where the tuners are undetectable without sensor j has no gain without it
     (out_status 2): between such a node and the others the update comes from the steady P and R
     (health held), elsewhere from the stored gain; the reference filter does the same."""
