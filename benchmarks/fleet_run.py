@@ -1,4 +1,4 @@
-"""Fleet-run benchmark (issue #15): many short flight logs through ``pwl.fleet_run.run_many``.
+"""Fleet-run benchmark (issue #15): many short flight logs through ``pwl.fleet.runs.run_many``.
 
     python benchmarks/fleet_run.py                  # 1000 logs of 90 s (the issue's figure)
     python benchmarks/fleet_run.py --logs 60        # quick figures (about 3 minutes on 2 cores)
@@ -29,7 +29,7 @@ from concurrent.futures import ProcessPoolExecutor
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), ".."))
 sys.path.insert(0, ROOT)
 
-from pwl.fleet_run import FAILED, local_dask_cluster, run_many  # noqa: E402
+from pwl.fleet.runs import FAILED, local_dask_cluster, run_many  # noqa: E402
 from pwl.logs import Log, read_log, write_log  # noqa: E402
 from pwl.results import COMPRESSIONS, DEFAULT_COMPRESSION  # noqa: E402
 
@@ -159,7 +159,7 @@ def _alive(proc) -> bool:
 FIRST_LOG = """
 import sys, time
 t0 = time.perf_counter()
-from pwl.fleet_run import run_many
+from pwl.fleet.runs import run_many
 r = run_many(sys.argv[1], [sys.argv[2]], sys.argv[3], workers=1, force=True)
 assert r[0].status == "ok", r[0].error
 print(time.perf_counter() - t0)

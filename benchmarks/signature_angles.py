@@ -1,8 +1,8 @@
 """How separable are the fault classes with the turbofan's sensors? Angles between signatures.
 
-For every fault hypothesis of pwl.diagnose (a component: its efficiency and flow free, 2-D; a
+For every fault hypothesis of pwl.fleet.diagnose (a component: its efficiency and flow free, 2-D; a
 sensor or fuel-flow bias, 1-D) the signature columns at a steady snapshot are computed by
-pwl.signatures from the database, at snapshots made by the nonlinear model's own trims (nominal
+pwl.fleet.signatures from the database, at snapshots made by the nonlinear model's own trims (nominal
 health, ISA) at a cruise point and at ground idle. The columns are whitened by the flight-to-flight
 scatter of the snapshot deviations (1 sigma per channel, relative; default: the scatter measured by
 ``pwl fleet diagnose`` on the 100 x 20 benchmark fleet) and the smallest principal angle between
@@ -17,7 +17,6 @@ fault direction (efficiency with flow in the fleet simulator's ratio) and its ne
 hypothesis, single components or pairs.
 """
 import argparse
-import itertools
 import os
 
 import numpy as np
@@ -26,8 +25,8 @@ from scipy.linalg import subspace_angles
 from models.fleet import COMPONENT_RATIO
 from models.turbofan import Turbofan
 from pwl.database import GainDatabase
-from pwl.diagnose import hypotheses
-from pwl.signatures import Signatures
+from pwl.fleet.diagnose import hypotheses
+from pwl.fleet.signatures import Signatures
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 # flight-to-flight 1-sigma scatter of the deviations (relative) per regime, as printed by

@@ -208,7 +208,7 @@ def compare_database(db_path, logs, k: int = 3, seed: int = 0, settle: float = 1
     from pwl.database import GainDatabase
     from pwl.estimator import Estimator
     from pwl.logs import read_log
-    from pwl.trending import health_summary
+    from pwl.fleet.trending import health_summary
 
     db = GainDatabase.open(db_path)
     record, zoned = database_zones(db, k, seed)

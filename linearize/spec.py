@@ -55,6 +55,51 @@ class SpecError(PwlError, ValueError):
 
 @dataclass
 class BuildSpec:
+    """How to build a gain database (``pwl build SPEC``, :func:`linearize.build.build`): the
+    parsed TOML of the module docstring. Made with :meth:`load` (a file) or :meth:`parse` (text);
+    the text is stored in the database it builds (``attrs["spec"]``).
+
+    Parameters
+    ----------
+    plant : str
+        The plant class, ``"package.module:Class"`` ([model] plant).
+    parameters : dict
+        Keyword arguments of the plant class ([model] parameters).
+    trim_grid, dyn_grid : Grid
+        The trim and dynamics grids over scheduling variables ([trim_grid], [dynamics_grid]:
+        name = breakpoints, in the plant's units), with the out-of-range policy.
+    power_axis : str
+        The trim-grid axis along which trims are warm-started and failed trims filled.
+    dt : float
+        Runtime sample time, s (zero-order hold).
+    differences : {"central", "forward"}
+        Perturbation differences of the Jacobians.
+    perturbation : dict
+        Name -> relative perturbation size (overrides the plant's).
+    health_reference : dict
+        Health parameter -> reference value h_ref (fraction; overrides the plant's).
+    dynamics_hold : dict
+        Scheduling variables left out of the dynamics grid -> the value they are linearized at.
+    q_x, q_h : float or dict
+        Process noise, one sigma per step: states (fraction of the trim value) and health random
+        walk (fraction); a number, or name -> number with ``default``.
+    r : dict
+        Sensor -> noise one sigma (fraction of the value; default: the plant's).
+    tuner_method : {"subset", "optimal"}
+        How the tuners V* are chosen.
+    n_tuners : int
+        Number of tuners (<= number of sensors).
+    targets : list of str
+        What the tuners should estimate well: ``"h"`` (all health parameters), health or
+        unmeasured-output names.
+    health_sigma : float or dict
+        Prior one-sigma of the true health (fraction), for the tuner selection.
+    text : str
+        The spec's TOML text.
+    path : str
+        Its file (named in errors).
+    """
+
     plant: str
     parameters: dict
     trim_grid: Grid
@@ -77,6 +122,25 @@ class BuildSpec:
 
     @classmethod
     def load(cls, path) -> "BuildSpec":
+        """Read and check a build spec file.
+
+        Parameters
+        ----------
+        path : str or path-like
+            A UTF-8 TOML file (module docstring; ``specs/*.toml``).
+
+        Returns
+        -------
+        BuildSpec
+
+        Raises
+        ------
+        SpecError
+            Not UTF-8 or not TOML, an unknown section or key, a missing [model] plant, a value
+            of the wrong type, bad breakpoints, a non-positive dt; naming the file and the key.
+        OSError
+            The file cannot be read (FileNotFoundError when it does not exist).
+        """
         with open(path, "rb") as fh:
             raw = fh.read()
         try:
@@ -87,6 +151,7 @@ class BuildSpec:
 
     @classmethod
     def parse(cls, text: str, path: str = "<string>") -> "BuildSpec":
+        """The spec of TOML ``text`` (as :meth:`load`; ``path`` names it in :class:`SpecError`)."""
         try:
             d = tomllib.loads(text)
         except tomllib.TOMLDecodeError as e:

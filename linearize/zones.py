@@ -324,26 +324,8 @@ def database_zones(db, k: int = 3, seed: int = 0, n_init: int = 10):
 
 # ---- storage ---------------------------------------------------------------------------------------
 def attach(db, table: ZoneTable) -> None:
-    """Put the zones into a gain database (``db.zones``; written by ``db.save``)."""
+    """Put the zones into a gain database (``db.zones``; written by ``db.save`` through
+    :func:`pwl.zones.write_zones`, the one zones writer; a stand-alone zones file:
+    :func:`pwl.zones.save_zones`)."""
     db.zones = table.record()
 
-
-def save_zones(path, table: ZoneTable) -> None:
-    """A stand-alone zones file: one ``/zones`` group laid out as inside a gain database."""
-    from pwl.database import write_record
-    from pwl.h5io import atomic_h5
-
-    with atomic_h5(path, {"format": "pwl-zones-file"}) as f:
-        write_record(f.create_group("zones"), *table.record())
-
-
-def load_zones(path) -> ZoneTable:
-    """The ``/zones`` group of a gain database or of a stand-alone zones file."""
-    import h5py
-
-    from pwl.database import read_record
-
-    with h5py.File(path, "r") as f:
-        if "zones" not in f:
-            raise ValueError(f"{path}: no /zones group")
-        return ZoneTable.from_record(read_record(f["zones"]), where=f"{path}:/zones")

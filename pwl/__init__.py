@@ -22,7 +22,7 @@ _PUBLIC = {
     "read_log": "logs",
     "write_log": "logs",
     "ChannelMap": "channel_map",
-    "run_many": "fleet_run",
+    "run_many": "fleet.runs",
     "PwlError": "errors",
 }
 

@@ -32,8 +32,23 @@ class ChannelMapError(LogError):
 
 @dataclass(frozen=True)
 class ChannelMap:
-    """``channels``: model channel -> (log column, unit or "" for the log's own declaration);
-    ``time``: the log's time column ("" to find it by name), ``time_unit`` its unit ("" for s)."""
+    """How a log names and scales its channels: log columns -> the model's channel names.
+
+    Usually read from a TOML file with :meth:`load` (module docstring) and given to
+    :func:`pwl.read_log` or ``Estimator(..., channel_map=)``.
+
+    Parameters
+    ----------
+    channels : dict
+        Model channel -> (log column, unit): the unit of the column ("" for the log's own
+        declaration); a unit is a symbol of :mod:`pwl.units`.
+    time : str
+        The log's time column ("" to find it by name: time, timestamp, datetime or t).
+    time_unit : str
+        Its unit: s, ms, min, h ("" for s; date-times need none).
+    path : str
+        The TOML file (named in errors).
+    """
 
     channels: dict[str, tuple[str, str]]
     time: str = ""
@@ -42,7 +57,23 @@ class ChannelMap:
 
     @classmethod
     def load(cls, path) -> "ChannelMap":
-        """Read and check a channel-map TOML file (:class:`ChannelMapError` naming the file and key)."""
+        """Read and check a channel-map TOML file.
+
+        Parameters
+        ----------
+        path : str or path-like
+            The TOML file: ``[time]`` (optional) and ``[channels]``.
+
+        Returns
+        -------
+        ChannelMap
+
+        Raises
+        ------
+        ChannelMapError
+            No such file, not TOML, an unknown key, a unit pwl does not know, an empty
+            ``[channels]``; naming the file and the key.
+        """
         path = os.fspath(path)
         try:
             with open(path, "rb") as fh:
@@ -89,10 +120,30 @@ class ChannelMap:
         return out
 
     def apply(self, log: Log) -> Log:
-        """``log`` with the model's channel names and units: each mapped column renamed (a column
-        may feed several channels), its unit the map's or else the log's own (declared units that
-        differ are an error), every other column and truth channel dropped. The time stays as read
-        (``read_log(path, channel_map=...)`` uses the map's [time] column while reading)."""
+        """The log with the model's channel names and units.
+
+        Each mapped column is renamed (a column may feed several channels), its unit the map's
+        or else the log's own; every other column and truth channel is dropped. The time stays
+        as read (``read_log(path, channel_map=...)`` uses the map's [time] column while
+        reading).
+
+        Parameters
+        ----------
+        log : Log
+            A log with the log's own column names.
+
+        Returns
+        -------
+        Log
+            Channels named as the model's (values unchanged, units declared; the estimator
+            converts them), ``attrs["channel_map"]`` = the map's path.
+
+        Raises
+        ------
+        LogError
+            A mapped column the log does not have, or a log unit that differs from the map's
+            (naming the log, the column and the map's key).
+        """
         channels, units = {}, {}
         for name, (col, unit) in self.channels.items():
             if col not in log.channels:

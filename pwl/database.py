@@ -17,11 +17,14 @@ import numpy as np
 
 from . import __version__
 from .grid import POLICIES, Axis, AxisError, Grid, check_breakpoints
-from .h5io import SealError, atomic_h5, attr_str, check_seal, file_digest, read_strings, write_strings
 from .errors import PwlError
+from .formats import GAIN_DATABASE, check, stamp
+from .h5io import SealError, atomic_h5, attr_str, check_seal, file_digest, read_strings, write_strings
+from .tables import read_tables, write_tables
+from .zones import read_zones, write_zones
 
-FORMAT = "pwl-gain-database"
-VERSION = 2   # 2: the file is sealed (pwl.h5io); version 1 files (unsealed) are still read
+FORMAT = GAIN_DATABASE.name
+VERSION = GAIN_DATABASE.version   # 2: the file is sealed (pwl.h5io); version 1 files (unsealed) are still read
 KINDS = ("x", "u", "y", "z", "h", "q", "p")
 MATRICES = ("A", "B", "C", "D", "F", "G", "L", "M", "N")
 
@@ -87,8 +90,11 @@ class Correction:
 
 @dataclass
 class GainDatabase:
-    """A gain database in memory. Shapes (T = trim grid shape, D = dynamics grid shape,
-    na = nx + nq augmented states):
+    """A gain database in memory (written by ``pwl build`` / :mod:`linearize`; read with
+    :meth:`open`, written with :meth:`save`; format in docs/database-format.md).
+
+    Fields, with their shapes (T = trim grid shape, D = dynamics grid shape, na = nx + nq
+    augmented states):
 
     - ``names``/``units``: kind (x u y z h q p) -> list of str
     - ``schedule``: per p: (log channel, corrected, scale): p = scale * channel (corrected first)
@@ -188,7 +194,26 @@ class GainDatabase:
         dynamics grid exactly as the runtime does. ``p``: scheduling variables in
         ``names["p"]`` order, a sequence or a dict name -> value (variables the dynamics grid
         does not have are ignored: its matrices are held there; attrs["dynamics_hold"]).
-        Signal names follow the database's names."""
+        Signal names follow the database's names.
+
+        Parameters
+        ----------
+        p : sequence of float (np,) or dict
+            The operating point: scheduling variables in ``names["p"]`` order (their units,
+            ``units["p"]``), or name -> value (at least every dynamics-grid axis).
+
+        Returns
+        -------
+        control.StateSpace
+            Discrete (dt s), nx states, nu + nh inputs, ny + nz outputs, named.
+
+        Raises
+        ------
+        DatabaseError
+            An unknown scheduling variable, a missing dynamics axis, a wrong number of values.
+        ImportError
+            python-control is not installed.
+        """
         import control
 
         from .interp import interpolate
@@ -216,8 +241,22 @@ class GainDatabase:
                           outputs=self.names["y"] + self.names["z"])
 
     def operating_point(self, S, theta, delta) -> np.ndarray:
-        """Scheduling variables p (n, np) from the raw schedule channels S (n, np) and theta,
-        delta (n,) (the inlet ratios T/T_std, P/P_std), as the runtime computes them."""
+        """The scheduling variables, from raw log channels, as the runtime computes them:
+        p = scale * channel, divided by the channel's correction factor theta^a delta^b where
+        the schedule says ``corrected``.
+
+        Parameters
+        ----------
+        S : array_like (n, np)
+            The raw schedule channels, ``[c for c, _, _ in schedule]`` order, log units.
+        theta, delta : array_like (n,)
+            The inlet ratios T_in / T_std and P_in / P_std (dimensionless).
+
+        Returns
+        -------
+        ndarray (n, np)
+            Scheduling variables in ``names["p"]`` order, ``units["p"]``.
+        """
         S = np.atleast_2d(np.asarray(S, dtype=np.float64))
         fac = self.correction_factor([c for c, _, _ in self.schedule], theta, delta)
         corr = np.array([bool(c) for _, c, _ in self.schedule])
@@ -365,12 +404,25 @@ class GainDatabase:
 
     # ---- writing -----------------------------------------------------------------------------
     def save(self, path) -> None:
-        """Write the database to ``path`` atomically (temporary file + rename)."""
+        """Write the database to a file (format ``pwl-gain-database``, :mod:`pwl.formats`),
+        atomically: a temporary file in the same folder, sealed, renamed onto ``path`` when
+        complete; a crash leaves any previous file untouched.
+
+        Parameters
+        ----------
+        path : str or path-like
+            The database file (folders created).
+
+        Raises
+        ------
+        DatabaseError
+            The database in memory is inconsistent (:meth:`validate`: names, grids, every
+            dataset's presence, dtype and shape), naming what is wrong.
+        """
         self.validate()
         self.attrs.setdefault("created", _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"))
         with atomic_h5(path) as f:
-            f.attrs["format"] = FORMAT
-            f.attrs["format_version"] = VERSION
+            stamp(f, GAIN_DATABASE)
             f.attrs["created"] = self.attrs["created"]
             f.attrs["software_version"] = __version__
             f.attrs["out_of_range"] = self.policy
@@ -406,16 +458,36 @@ class GainDatabase:
                 g.create_dataset("range", data=np.array([[lo, hi] for _, lo, hi in self.log_channels.values()],
                                                         dtype=np.float64).reshape(-1, 2))
             if self.zones is not None:
-                write_record(f.create_group("zones"), *self.zones)
-            if self.tables:
-                t = f.create_group("tables")
-                for name, rec in self.tables.items():
-                    write_record(t.create_group(name), *rec)
+                write_zones(f, self.zones)
+            write_tables(f, self.tables)
 
     # ---- reading -----------------------------------------------------------------------------
     @classmethod
     def open(cls, path) -> "GainDatabase":
-        """Read and validate a database; raises a :class:`DatabaseError` subclass naming what is wrong."""
+        """Read and validate a gain database.
+
+        Checks the seal, the format and version (:func:`pwl.formats.check`), every dataset of
+        the schema (presence, shape, dtype, finite values), the axes, and that every stored gain
+        gives stable error dynamics.
+
+        Parameters
+        ----------
+        path : str or path-like
+            A ``pwl-gain-database`` file, version 1 or 2.
+
+        Returns
+        -------
+        GainDatabase
+            With ``path``, ``digest`` (sha256 hex of the sealed content) and ``sealed`` set.
+
+        Raises
+        ------
+        DatabaseError
+            A subclass naming the file and what is wrong: ``CorruptError`` (seal, damaged HDF5),
+            ``NotHDF5Error``, ``ForeignFormatError`` (another format), ``VersionError`` (newer,
+            missing or invalid version), ``MissingDataError``, ``ShapeError``,
+            ``NonFiniteError``, ``UnstableGainError``, ``BadAxisError``.
+        """
         path = os.fspath(path)
         if not os.path.exists(path):
             raise DatabaseError(f"{path}: no such file")
@@ -444,15 +516,7 @@ class GainDatabase:
     def _open(cls, path, sealed: bool):
         f = h5py.File(path, "r")
         with f:
-            fmt = attr_str(f, "format")
-            if fmt != FORMAT:
-                raise ForeignFormatError(f"{path}: format attribute is {fmt!r}, not {FORMAT!r}")
-            ver = int(f.attrs.get("format_version", -1))
-            if ver > VERSION:
-                raise VersionError(f"{path}: format version {ver} is newer than this pwl reads "
-                                   f"({VERSION}); upgrade pwl")
-            if ver < 1:
-                raise VersionError(f"{path}: invalid format version {ver}")
+            _, ver = check(GAIN_DATABASE, path, f, error=ForeignFormatError, version_error=VersionError)
             if ver >= 2 and not sealed:
                 raise CorruptError(f"{path}: format version {ver} files are sealed, this one's seal "
                                    f"is missing (corrupted user block, or edited outside pwl)")
@@ -521,8 +585,8 @@ class GainDatabase:
             if not len(cn) == len(cu) == len(rng):
                 raise ShapeError(f"{path}: /log_channels name, unit and range differ in length")
             db.log_channels = {n: (u, float(lo), float(hi)) for n, u, (lo, hi) in zip(cn, cu, rng)}
-        db.zones = read_record(f["zones"]) if "zones" in f else None
-        db.tables = {k: read_record(g) for k, g in f["tables"].items()} if "tables" in f else {}
+        db.zones = read_zones(f)
+        db.tables = read_tables(f)
         db.validate()
         return db
 
@@ -574,14 +638,3 @@ class GainDatabase:
             lines.append(f"  sha256 {self.digest}")
         return "\n".join(lines)
 
-
-def write_record(group, arrays: dict, attrs: dict) -> None:
-    """Store a record (name -> ndarray, JSON-able attrs) in an HDF5 group."""
-    for k, v in arrays.items():
-        group.create_dataset(k, data=np.asarray(v))
-    group.attrs["attrs_json"] = json.dumps(attrs, sort_keys=True)
-
-
-def read_record(group) -> tuple[dict, dict]:
-    arrays = {k: d[()] for k, d in group.items() if isinstance(d, h5py.Dataset)}
-    return arrays, json.loads(attr_str(group, "attrs_json", "{}"))

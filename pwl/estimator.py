@@ -19,7 +19,7 @@ from .runtime import (FLAG_DYN_OUTSIDE, FLAG_NOT_STARTED, FLAG_TRIM_OUTSIDE, HEA
 from .results import LOG_ATTRS, Result, append_rows, init_result_file
 from .snapshots import SNAPSHOT_OUTPUTS, SnapshotAccumulator, SteadyConfig
 from .errors import PwlError, UsageError
-from .tables import LAWS, AdaptiveTable, TableError
+from .tables import LAWS, AdaptiveTable, TableError, save_tables
 
 OUTPUTS = ("x_hat", "q_hat", "h_hat", "y_hat", "residual", "z_hat")
 BIAS_PREFIX = "bias_"   # bias tables are stored as /tables/bias_<channel>
@@ -131,8 +131,32 @@ class Estimator:
 
     # ---- bias tables (the tuning element) ---------------------------------------------------
     def new_bias_tables(self, channels, axes=None, ratio: float = 100.0, law: str = "exact") -> dict:
-        """Fresh zero tables for sensed ``channels`` over ``axes`` (a :class:`Grid`, or None for
-        the dynamics grid's axes), installed in this estimator and returned."""
+        """Fresh zero bias tables, installed in this estimator (they learn during runs) and returned.
+
+        Parameters
+        ----------
+        channels : sequence of str
+            Sensed outputs (``db.names["y"]``) to give a bias table each.
+        axes : Grid, optional
+            The tables' grid over scheduling variables (``db.names["p"]``); None: the dynamics
+            grid's axes.
+        ratio : float
+            sigma_x^2 / sigma_theta^2, measurement over process noise variance of the tables'
+            gain law (larger: slower learning).
+        law : {"exact", "paper"}
+            The gain law (:mod:`pwl.tables`); every bias table has the same.
+
+        Returns
+        -------
+        dict
+            channel -> :class:`pwl.tables.AdaptiveTable`, values 0 in the channel's corrected
+            units (the same objects as ``self.bias``).
+
+        Raises
+        ------
+        TableError
+            An axis that is not a scheduling variable, or a law other than exact/paper.
+        """
         grid = axes if isinstance(axes, Grid) else Grid(
             [Axis(a.name, a.values, a.unit) for a in self.db.dyn_grid.axes], self.db.policy)
         tables = {c: AdaptiveTable(grid, law=law, ratio=ratio) for c in channels}
@@ -177,14 +201,34 @@ class Estimator:
             self.names["bias_hat"] = list(tables)
 
     def save_bias_tables(self, path) -> None:
-        """Write every bias table to ``/tables/bias_<channel>`` of ``path`` (a gain database or a
-        side file; created if missing; atomic)."""
-        for c, t in self.bias.items():
-            t.save(path, BIAS_PREFIX + c)
+        """Write every bias table to ``/tables/bias_<channel>`` of a file, atomically.
+
+        Parameters
+        ----------
+        path : str or path-like
+            A gain database (its other content is kept, its seal renewed) or an adaptive-tables
+            file; created as an adaptive-tables file (``pwl-adaptive-tables``) if missing. Read
+            back with :func:`load_bias_tables`.
+
+        Raises
+        ------
+        TableError
+            ``path`` is not HDF5, or a file of another kind (named with the format found).
+        """
+        save_tables(path, {BIAS_PREFIX + c: t.to_record() for c, t in self.bias.items()})
 
     # ---- state -------------------------------------------------------------------------------
     def reset(self, q0=None) -> None:
-        """Forget the filter state: the next valid sample starts at trim with tuners q0 (default 0)."""
+        """Forget the filter state (start of a flight): the next valid sample starts at trim.
+
+        Bias tables keep what they learnt; the channel counts (``missing``, ``implausible``)
+        start again from 0.
+
+        Parameters
+        ----------
+        q0 : array_like (nq,), optional
+            Initial tuners (default 0: nominal health), e.g. the last flight's final ``q_hat``.
+        """
         nx, nu, ny, nz, nq, nh = self.pm.dims
         if getattr(self, "state", None) is None:   # arrays kept: a Stream holds them
             self.state = np.empty(self.pm.state_size())
@@ -220,10 +264,33 @@ class Estimator:
 
     # ---- core --------------------------------------------------------------------------------
     def run_arrays(self, U, Y, S, TH=None, DE=None, time=None, out=None) -> Result:
-        """Run on arrays U (n, nu), Y (n, ny), S (n, ns) raw channels, TH/DE (n,) theta/delta.
+        """Run the filter on arrays of raw log channels, continuing from the current state.
 
-        ``out``: optional buffers to reuse, as returned in an earlier result's ``outputs`` plus
-        ``"flags"`` (same n); saves the allocation (and page faults) of long runs."""
+        Parameters
+        ----------
+        U : array_like (n, nu)
+            Inputs, ``db.names["u"]`` order, database units (uncorrected).
+        Y : array_like (n, ny)
+            Sensed outputs, ``db.names["y"]`` order, database units; NaN: missing (no update
+            from it that step).
+        S : array_like (n, ns)
+            Schedule channels, ``[c for c, _, _ in db.schedule]`` order (raw log channels; the
+            scheduling variables are computed from them as :meth:`GainDatabase.operating_point`).
+        TH, DE : array_like (n,), optional
+            theta = T_in / T_std and delta = P_in / P_std (dimensionless) for the parameter
+            correction; default 1.
+        time : array_like (n,), optional
+            Sample times (s); default ``arange(n) * db.dt``.
+        out : dict, optional
+            Buffers to reuse, as returned in an earlier result's ``outputs`` plus ``"flags"``
+            (same n); saves the allocation (and page faults) of long runs.
+
+        Returns
+        -------
+        Result
+            Every output of :attr:`names` (n, k) in physical units, flags (n,), time (n,) s;
+            without provenance or snapshots (:meth:`run` adds them).
+        """
         U, Y, S = (np.ascontiguousarray(np.atleast_2d(a), dtype=np.float64) for a in (U, Y, S))
         n = U.shape[0]
         one = np.ones(n)
@@ -328,7 +395,32 @@ class Estimator:
         return U, Y, S, TH, DE
 
     def run(self, log, reset: bool = True) -> Result:
-        """Estimates for a whole log (a :class:`Log` or a path); resets the filter first by default."""
+        """Estimates for a whole log.
+
+        Parameters
+        ----------
+        log : Log or str or path-like
+            A :class:`pwl.logs.Log`, or a log file read with :func:`pwl.logs.read_log` through
+            this estimator's channel map. Sampled at the database's dt (else refused unless
+            ``resample``); channel units are converted to the database's.
+        reset : bool
+            Reset the filter first (default; one log = one flight), else continue from the
+            current state.
+
+        Returns
+        -------
+        Result
+            Outputs (n, k), flags (n,), time (n,) s, ``attrs["provenance"]`` (:attr:`provenance`
+            and the log's identity) and the steady-state ``snapshots``.
+
+        Raises
+        ------
+        LogError
+            An unreadable log, a channel it lacks, a unit that does not convert, another sample
+            interval.
+        EnvelopeError
+            The operating point left the grid and the database's policy is ``error``.
+        """
         log = log if isinstance(log, Log) else read_log(log, channel_map=self.channel_map)
         if reset:
             self.reset()
@@ -379,8 +471,15 @@ class Estimator:
 
     @property
     def provenance(self) -> dict:
-        """What produced a results file: database path and digest, estimator mode, pwl version,
-        time."""
+        """What produced a results file (stored as results-file attributes; resume compares them).
+
+        Returns
+        -------
+        dict
+            ``database`` (absolute path, or ``"<memory>"``), ``database_digest`` (sha256 hex),
+            ``mode`` (the estimator mode, ``+bias`` with bias tables, ``+map:<digest>`` with a
+            channel map), ``pwl_version``, ``created`` (ISO 8601 UTC, seconds).
+        """
         import datetime
 
         from . import __version__
@@ -426,9 +525,24 @@ class Estimator:
         acc.add(start, res.time, raw, p, {o: res.outputs[o] for o in SNAPSHOT_OUTPUTS}, outside)
 
     def step(self, sample: dict) -> dict:
-        """One sample (channel name -> value, database units) -> estimates of this step (name ->
-        value) and flags. Convenient, not fast: for on-line use at batch speed use a
-        :class:`pwl.streaming.Stream` (made here once and shared)."""
+        """One sample through the filter, continuing from the current state.
+
+        Convenient, not fast: for on-line use at batch speed use a :class:`pwl.streaming.Stream`
+        (made here once and shared).
+
+        Parameters
+        ----------
+        sample : dict
+            Log channel name -> value in the database's units, for every channel of
+            :attr:`input_channels` (NaN or a missing sensed output: no update from it).
+
+        Returns
+        -------
+        dict
+            Output name (``x_hat``, ``q_hat``, ``h_hat``, ``y_hat``, ``residual``, ``z_hat``, ...)
+            -> {column name: value} in physical units, and ``"flags"`` -> the step's flag bits
+            (int; :data:`pwl.runtime.FLAG_*`).
+        """
         if getattr(self, "_stream", None) is None:
             from .streaming import Stream
             self._stream = Stream(self)
@@ -451,16 +565,42 @@ class Estimator:
                  compression: str | None = None) -> dict:
         """Process one log file to one results file, chunk by chunk (bounded memory).
 
-        HDF5 logs are read ``chunk`` samples at a time; CSV/Parquet logs are read whole.
-        ``outputs``: the outputs to write (names or a comma-separated string; None: all of
-        :attr:`names`; time and flags are always written); ``every``: write samples 0, N, 2N, ...
-        of the log only; ``compression``: None (the default), "gzip" (deflate level 4 with
-        shuffle) or "lzf" (see :data:`pwl.results.COMPRESSIONS`). The counts, the residual RMS
-        and the snapshots always come from every sample. The results file appears only when
-        complete.
+        Resets the filter first. The counts, the residual RMS and the snapshots always come from
+        every sample. The results file (``pwl-estimates``) appears only when complete.
 
-        Returns the flag counts, ``snapshots`` (how many), ``missing_channels`` (channel ->
-        samples) and ``residual_rms`` (sensor -> RMS of its residuals, sensor units).
+        Parameters
+        ----------
+        log_path : str or path-like
+            The log (any format :func:`pwl.logs.read_log` reads). HDF5 flight logs are read
+            ``chunk`` samples at a time; other formats (and logs that need resampling or a
+            channel map) are read whole.
+        out_path : str or path-like
+            The results file (HDF5; a ``.csv`` path writes CSV).
+        chunk : int
+            Samples per chunk of an HDF5 log.
+        outputs : sequence of str or str, optional
+            The outputs to write (names, or a comma-separated string; None: all of
+            :attr:`names`); time and flags are always written.
+        every : int
+            Write samples 0, N, 2N, ... of the log only.
+        compression : {None, "gzip", "lzf"}
+            HDF5 filter of the outputs (:data:`pwl.results.COMPRESSIONS`); None: none.
+
+        Returns
+        -------
+        dict
+            The flag counts (:data:`pwl.results.COUNT_KEYS`), ``snapshots`` (how many),
+            ``missing_channels`` (channel -> samples) and ``residual_rms`` (sensor -> RMS of its
+            residuals, sensor units).
+
+        Raises
+        ------
+        LogError
+            The log cannot be read or lacks a channel.
+        UsageError
+            An unknown output name, ``every`` < 1, an unknown compression.
+        EnvelopeError
+            The operating point left the grid and the database's policy is ``error``.
         """
         from .results import Totals, output_units, select_outputs, selection_record, thin_rows
 

@@ -28,11 +28,12 @@ import h5py
 import numpy as np
 
 from .errors import PwlError
+from .formats import FLIGHT_LOG, check, stamp
 from .h5io import SealError, atomic_h5, attr_str, check_seal
 from .units import UnitError, converter
 
-FORMAT = "pwl-flight-log"
-VERSION = 1
+FORMAT = FLIGHT_LOG.name
+VERSION = FLIGHT_LOG.version
 
 
 class LogError(PwlError, ValueError):
@@ -41,7 +42,24 @@ class LogError(PwlError, ValueError):
 
 @dataclass
 class Log:
-    """A flight log in memory: time (n,), channels and truth as name -> float64 (n,) arrays."""
+    """A flight log in memory (what :func:`read_log` returns and :func:`write_log` writes).
+
+    Parameters
+    ----------
+    time : ndarray (n,)
+        Sample times, seconds, strictly increasing.
+    channels : dict
+        Logged (measured) channel name -> float64 (n,) values.
+    units : dict
+        Channel name -> its declared unit ("" or absent: undeclared, taken as the model's).
+    truth, truth_units : dict, optional
+        True values (name -> (n,)) and their units, for validation (simulated logs).
+    attrs : dict, optional
+        Free metadata (``dt`` in s, ``engine``, ``flight_index``, ``flight_time``, model,
+        seed, ...).
+    path : str
+        Where the log came from (``"<memory>"`` when built in memory); named in errors.
+    """
 
     time: np.ndarray
     channels: dict[str, np.ndarray]
@@ -93,17 +111,30 @@ class Log:
 
 
 def write_log(path, log: Log, compact: bool = False) -> None:
-    """Write ``log`` as HDF5 (atomically); ``.csv`` paths go to :func:`write_csv`.
+    """Write a log to a file, atomically (temporary file renamed when complete).
 
-    ``compact`` stores channels as float32 with shuffle + gzip (for shipped sample data: sensor
-    values need no more than float32's 7 digits); the reader always returns float64.
+    Parameters
+    ----------
+    path : str or path-like
+        ``.csv``: CSV (:func:`write_csv`: a ``name[unit]`` header row, ``truth.`` columns);
+        anything else: pwl's sealed HDF5 flight log (format ``pwl-flight-log``, module
+        docstring).
+    log : Log
+        Every channel and truth channel must have the shape of ``log.time`` (n,).
+    compact : bool
+        HDF5 only: store channels as float32 with shuffle + gzip (for shipped sample data:
+        sensor values need no more than float32's 7 digits); the reader always returns float64.
+
+    Raises
+    ------
+    LogError
+        A channel whose shape is not (n,).
     """
     if os.fspath(path).lower().endswith(".csv"):
         return write_csv(path, log)
     n = len(log)
     with atomic_h5(path) as f:
-        f.attrs["format"] = FORMAT
-        f.attrs["format_version"] = VERSION
+        stamp(f, FLIGHT_LOG)
         for k, v in log.attrs.items():
             f.attrs[k] = v if isinstance(v, (int, float, str, np.number, np.bool_)) else json.dumps(v)
         f.create_dataset("time", data=np.asarray(log.time, dtype=np.float64))
@@ -154,13 +185,28 @@ def _named(path, what: str = "damaged log"):
 
 
 def read_log(source, channel_map=None) -> Log:
-    """Read a flight log; raises :class:`LogError` naming the file (and column) on any defect.
+    """Read a flight log of any format pwl takes (docs/runtime.md "Log formats" has the rules).
 
-    ``source``: a path, by extension ``.csv``/``.tsv`` (CSV), ``.parquet``, ``.mat`` (MATLAB v5 or
-    v7.3), anything else HDF5 (pwl's own ``pwl-flight-log``); or a pandas DataFrame (the time
-    as a column or as the index). ``channel_map``: a :class:`pwl.channel_map.ChannelMap` or the
-    path of its TOML file; it picks, renames and declares the units of the columns the model
-    reads (and reads HDF5 files of other layouts). docs/runtime.md "Log formats" has the rules.
+    Parameters
+    ----------
+    source : str, path-like or pandas.DataFrame
+        A path, by extension ``.csv``/``.tsv`` (CSV), ``.parquet``, ``.mat`` (MATLAB v5 or
+        v7.3), anything else HDF5 (pwl's own ``pwl-flight-log``, or another layout with a
+        channel map); or a pandas DataFrame (the time, s, as a column or as the index).
+    channel_map : ChannelMap or str or path-like, optional
+        A :class:`pwl.channel_map.ChannelMap` or the path of its TOML file: it picks, renames
+        and declares the units of the columns the model reads. None: the log's own names.
+
+    Returns
+    -------
+    Log
+        Time (n,) s, channels name -> float64 (n,), their declared units, truth if present.
+
+    Raises
+    ------
+    LogError
+        Any defect, naming the file (and the column): no such file, another format or a newer
+        version, a missing or non-numeric column, a time column that does not increase.
     """
     cmap = _channel_map(channel_map)
     pd = sys.modules.get("pandas")
@@ -201,9 +247,27 @@ def _is_flight_log(path) -> bool:
 
 
 def read_header(path) -> Log:
-    """An HDF5 log's time, channel units and attributes, validated, without channel data.
+    """An HDF5 flight log's time, channel units and attributes, validated, without channel data.
 
-    With :func:`read_rows` this reads long logs in chunks with bounded memory.
+    With :func:`read_rows` this reads long logs in chunks with bounded memory
+    (:meth:`pwl.Estimator.run_file`).
+
+    Parameters
+    ----------
+    path : str or path-like
+        A ``pwl-flight-log`` HDF5 file (:func:`write_log`).
+
+    Returns
+    -------
+    Log
+        ``time`` (n,) s, ``units`` of every channel, ``attrs``; ``channels`` empty.
+
+    Raises
+    ------
+    LogError
+        No such file, a damaged file (seal), another format or a newer version (naming the
+        format found and expected), a missing ``/time`` or ``/channels``, a channel whose length
+        is not the time's, a time that does not increase.
     """
     path = os.fspath(path)
     if not os.path.exists(path):
@@ -211,13 +275,8 @@ def read_header(path) -> Log:
     with _named(path, "not a readable HDF5 log"):
         check_seal(path)
         with h5py.File(path, "r") as f:
-            fmt = attr_str(f, "format")
-            if fmt != FORMAT:
-                raise LogError(f"{path}: not a flight log (format attribute {fmt!r}, expected {FORMAT!r}; "
-                               "an HDF5 file of another layout reads with a channel map)")
-            ver = int(f.attrs.get("format_version", -1))
-            if ver > VERSION:
-                raise LogError(f"{path}: flight-log format version {ver} is newer than this pwl reads ({VERSION})")
+            check(FLIGHT_LOG, path, f, error=LogError,
+                  hint="an HDF5 file of another layout reads with a channel map")
             if "time" not in f or "channels" not in f:
                 raise LogError(f"{path}: /time or /channels is missing")
             time = np.asarray(f["time"][()], dtype=np.float64)

@@ -17,14 +17,15 @@ import h5py
 import numpy as np
 
 from .errors import PwlError, UsageError
-from .h5io import attr_str, atomic_h5, check_seal, read_strings, write_strings
+from .formats import RESULTS, check, stamp
+from .h5io import atomic_h5, attr_str, check_seal, read_strings, write_strings
 from .logs import Log
 from .runtime import (FLAG_DYN_OUTSIDE, FLAG_HEALTH, FLAG_HEALTH_HELD, FLAG_HELD_INPUT, FLAG_IMPLAUSIBLE,
                       FLAG_MISFIT, FLAG_NO_UPDATE, FLAG_NOT_STARTED, FLAG_PARTIAL, FLAG_TRIM_OUTSIDE)
 from .snapshots import Snapshots
 
-FORMAT = "pwl-estimates"
-FORMAT_VERSION = 2
+FORMAT = RESULTS.name
+FORMAT_VERSION = RESULTS.version
 
 #: flag count -> the flag bit it counts (Result.counts, results-file attributes, fleet summary)
 FLAG_COUNTS = {"no_update": FLAG_NO_UPDATE, "partial": FLAG_PARTIAL, "held_input": FLAG_HELD_INPUT,
@@ -57,13 +58,35 @@ class ResultError(PwlError, ValueError):
 
 @dataclass
 class Result:
-    """Estimates for one log: each output (n, k) in physical units, flags (n,) int64, time (n,) s.
+    """Estimates for one log (what :meth:`pwl.Estimator.run` returns; :meth:`save`, :meth:`load`).
 
-    Outputs: x_hat, q_hat, h_hat, y_hat (a priori, bias included), residual, z_hat, and
-    ``bias_hat`` (the bias tables' values at the operating point) when the estimator has them,
-    ``h_std`` (standard deviation of every health estimate, from the filter's covariance) when it
-    is an online-covariance estimator. ``names``: output -> its k column names; ``units``: output
-    -> its k units (empty when not known)."""
+    An output is also an attribute: ``res.h_hat`` is ``res.outputs["h_hat"]``.
+
+    Parameters
+    ----------
+    time : ndarray (n,)
+        Sample times, s.
+    outputs : dict
+        Output name -> float64 (n, k) in physical units: ``x_hat`` (states), ``q_hat``
+        (tuners), ``h_hat`` (health parameters, fractions), ``y_hat`` (a-priori predicted sensed
+        outputs, bias included), ``residual`` (measured minus ``y_hat``, sensor units),
+        ``z_hat`` (unmeasured outputs); ``bias_hat`` (the bias tables' values at the operating
+        point) with bias tables; ``h_std`` (standard deviation of every health estimate, from the
+        filter's covariance) in online mode.
+    flags : ndarray (n,) int64
+        Bit mask per sample (:data:`pwl.runtime.FLAG_*`; docs/runtime.md section 5).
+    names : dict
+        Output -> its k column names (the database's names).
+    source : str
+        The log it came from.
+    attrs : dict
+        The log's ``engine``, ``flight_index``, ``flight_time`` and ``provenance``
+        (:attr:`pwl.Estimator.provenance` and the log's identity).
+    snapshots : Snapshots, optional
+        The steady-state snapshots (:mod:`pwl.snapshots`).
+    units : dict
+        Output -> its k units (empty when not known).
+    """
 
     time: np.ndarray
     outputs: dict[str, np.ndarray]
@@ -80,12 +103,39 @@ class Result:
         raise AttributeError(name)
 
     def channel(self, output: str, name: str) -> np.ndarray:
-        """One column, e.g. ``channel("z_hat", "T40")``."""
+        """One column of an output.
+
+        Parameters
+        ----------
+        output : str
+            An output name (``"z_hat"``, ``"h_hat"``, ...).
+        name : str
+            One of its columns (``"T40"``, ``"hpt_eff"``, ...).
+
+        Returns
+        -------
+        ndarray (n,)
+            A view of that column, physical units.
+
+        Raises
+        ------
+        KeyError
+            No such output.
+        ValueError
+            No such column.
+        """
         return self.outputs[output][:, self.names[output].index(name)]
 
     def counts(self) -> dict:
-        """Samples, the samples carrying each flag (:data:`FLAG_COUNTS`) and ``updated`` (the
-        samples with a measurement update)."""
+        """How many samples carry each flag.
+
+        Returns
+        -------
+        dict
+            ``samples`` (n), one count per flag of :data:`FLAG_COUNTS` (``no_update``,
+            ``partial``, ``held_input``, ``trim_outside``, ...), and ``updated`` (the samples with
+            a measurement update); keys in :data:`COUNT_KEYS` order, int.
+        """
         f = self.flags
         out = {"samples": int(f.size)}
         out.update({k: int(np.count_nonzero(f & bit)) for k, bit in FLAG_COUNTS.items()})
@@ -93,8 +143,19 @@ class Result:
         return out
 
     def to_dataframe(self):
-        """A pandas DataFrame: time (s) as the index, one column per ``output.channel`` (e.g.
-        ``z_hat.T40``), and ``flags``. Needs pandas."""
+        """The estimates as a pandas DataFrame.
+
+        Returns
+        -------
+        pandas.DataFrame
+            Index ``time`` (s); one float64 column per ``output.channel`` (e.g. ``z_hat.T40``),
+            physical units; and ``flags`` (int64).
+
+        Raises
+        ------
+        UsageError
+            pandas is not installed.
+        """
         try:
             import pandas as pd
         except ImportError:
@@ -105,10 +166,25 @@ class Result:
 
     def save(self, path, outputs=None, every: int = 1,
              compression: str | None = DEFAULT_COMPRESSION) -> None:
-        """HDF5 (atomic) or, for a ``.csv`` path, CSV with ``output.name`` columns. ``outputs``:
-        the outputs to keep (None: all; time and flags always), ``every``: keep samples 0, N,
-        2N, ... (the counts in the file still count every sample), ``compression``: a key of
-        :data:`COMPRESSIONS`."""
+        """Write a results file, atomically.
+
+        Parameters
+        ----------
+        path : str or path-like
+            HDF5 (format ``pwl-estimates``, :mod:`pwl.formats`; netCDF-4 readers open it too) or,
+            for a ``.csv`` path, CSV with ``time``, ``flags`` and ``output.name`` columns.
+        outputs : sequence of str or str, optional
+            The outputs to keep (None: all); time and flags always.
+        every : int
+            Keep samples 0, N, 2N, ... (the counts in the file still count every sample).
+        compression : {"none", "gzip", "lzf"} or None
+            HDF5 filter of the outputs (:data:`COMPRESSIONS`).
+
+        Raises
+        ------
+        UsageError
+            An unknown output, ``every`` < 1, an unknown compression.
+        """
         keep = select_outputs(self.names, outputs)
         rows = thin_rows(0, self.time.size, every)
         if os.fspath(path).lower().endswith(".csv"):
@@ -131,9 +207,25 @@ class Result:
 
     @classmethod
     def load(cls, path) -> "Result":
-        """A results file (``pwl-estimates`` version 1 or 2) as a Result: the outputs the file
-        holds, at the samples it kept (see its ``every`` attribute), its units, attributes and
-        snapshots. :class:`ResultError` naming the file when it is not one."""
+        """Read a results file.
+
+        Parameters
+        ----------
+        path : str or path-like
+            A results file (``pwl-estimates`` version 1 or 2; its seal checked).
+
+        Returns
+        -------
+        Result
+            The outputs the file holds, at the samples it kept (see its ``every`` attribute), its
+            units, its attributes (flat: counts, provenance keys, log identity) and snapshots.
+
+        Raises
+        ------
+        ResultError
+            Naming the file: not HDF5, damaged (seal), another format or a newer version
+            (naming the format and version found and expected).
+        """
         path = os.fspath(path)
         with open_results(path) as f:
             names = {o: read_strings(f["names"][o]) for o in f.get("names", {})}
@@ -201,8 +293,7 @@ def init_result_file(f, names, source, counts, n, attrs=None, provenance=None, u
     /time (s), /flags and one (n, k) float64 dataset per output of ``names`` (output -> k column
     names), extendable along axis 0 with :func:`append_rows`, with their dimension scales and
     ``units`` (output -> k units)."""
-    f.attrs["format"] = FORMAT
-    f.attrs["format_version"] = FORMAT_VERSION
+    stamp(f, RESULTS)
     f.attrs["source"] = str(source)
     for k, v in (attrs or {}).items():
         if k in LOG_ATTRS:
@@ -289,11 +380,11 @@ def open_results(path, verify: bool = True) -> h5py.File:
         raise ResultError(str(e)) from None
     except OSError as e:
         raise ResultError(f"{path}: not a readable HDF5 results file ({e})") from None
-    fmt, ver = attr_str(f, "format"), int(f.attrs.get("format_version", -1))
-    if fmt != FORMAT or ver > FORMAT_VERSION:
+    try:
+        check(RESULTS, path, f, error=ResultError)
+    except ResultError:
         f.close()
-        raise ResultError(f"{path}: not a pwl results file of a version this pwl reads (format {fmt!r} "
-                          f"version {ver}; this pwl reads {FORMAT!r} up to version {FORMAT_VERSION})")
+        raise
     return f
 
 

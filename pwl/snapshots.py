@@ -12,7 +12,7 @@ Each snapshot holds, per logged channel the filter reads, the mean over its fini
 standard error of that mean and the finite fraction (a dead sensor is NaN, not a zero), the mean
 operating point p, and the means of the filter's estimates (h_hat, q_hat, z_hat) over the window.
 
-Results files carry them in ``/snapshots`` (see docs/diagnostics.md); :mod:`pwl.diagnose` reads
+Results files carry them in ``/snapshots`` (see docs/diagnostics.md); :mod:`pwl.fleet.diagnose` reads
 them.
 """
 from __future__ import annotations

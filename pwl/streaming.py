@@ -67,16 +67,28 @@ def _stream_step(st, row):
 
 
 class Stream:
-    """One-sample-at-a-time estimation with an :class:`pwl.estimator.Estimator` (its database,
-    mode, bias tables and filter state).
+    """One-sample-at-a-time estimation with an :class:`pwl.Estimator`: its database, mode, bias
+    tables and filter state (shared: ``stream.reset()`` and ``est.reset()`` restart both).
+    Configure the estimator (bias tables, learning) before making its stream. Numbers equal a
+    batch run's bit for bit.
 
-    ``channels``: the log channels a sample holds, in order (inputs, sensed outputs, schedule,
-    theta/delta channels; ``units`` theirs: the database's); ``step(row)`` takes a float64 array
-    of them and returns the step's flags (``pwl.runtime.FLAG_*``); the step's estimates are then
-    in the (k,) arrays ``x_hat``, ``q_hat``, ``h_hat``, ``y_hat``, ``residual``, ``z_hat`` (and
-    ``bias_hat``, ``h_std`` when the estimator has them), overwritten by the next step: copy
-    what you keep. ``missing()`` counts the missing or implausible samples per channel.
-    Configure the estimator (bias tables, learning) before making its stream.
+    Parameters
+    ----------
+    est : Estimator
+        The estimator to step.
+
+    Attributes
+    ----------
+    channels : list of str
+        The log channels a sample holds, in order: inputs, sensed outputs, schedule channels,
+        theta/delta channels.
+    units : list of str
+        Their units (the database's); a row must be in these units (no conversion).
+    x_hat, q_hat, h_hat, y_hat, residual, z_hat : ndarray (k,)
+        The last step's estimates in physical units (and ``bias_hat``, ``h_std`` when the
+        estimator has them); overwritten by the next step: copy what you keep.
+    outputs : dict
+        Output name -> (1, k) array (the same buffers).
     """
 
     def __init__(self, est):
@@ -104,7 +116,23 @@ class Stream:
             setattr(self, o, a[0])
 
     def step(self, row) -> int:
-        """One sample: ``row`` (float64, len(channels)); returns its flags."""
+        """One sample.
+
+        Parameters
+        ----------
+        row : ndarray (len(channels),) float64
+            The sample in :attr:`channels` order and :attr:`units`; NaN means missing.
+
+        Returns
+        -------
+        int
+            The step's flag bits (``pwl.runtime.FLAG_*``).
+
+        Raises
+        ------
+        EnvelopeError
+            The operating point left the grid and the database's policy is ``error``.
+        """
         f = _stream_step(self._st, row)
         if self._check and f & (FLAG_TRIM_OUTSIDE | FLAG_DYN_OUTSIDE):
             from .estimator import EnvelopeError

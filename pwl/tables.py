@@ -38,20 +38,18 @@ import h5py
 import numpy as np
 from numba import njit
 
-from .database import read_record, write_record
+from .errors import PwlError
+from . import formats
+from .formats import GAIN_DATABASE, TABLE_RECORD, TABLES_FILE, check, stamp
 from .grid import Axis, Grid, locate
 from .h5io import atomic_h5
 from .interp import corner_weights, interp_many
-from .errors import PwlError
 
 #: gain-law codes of the kernels
 LAW_EXACT = 0
 LAW_PAPER = 1
 LAW_CORRELATED = 2
 LAWS = {"exact": LAW_EXACT, "paper": LAW_PAPER, "correlated": LAW_CORRELATED}
-
-RECORD_FORMAT = "pwl-adaptive-table"
-RECORD_VERSION = 1
 
 
 class TableError(PwlError, ValueError):
@@ -492,7 +490,7 @@ class AdaptiveTable:
         arrays = {"values": self.values.copy(), "counts": self.counts.copy()}
         for j, a in enumerate(self.grid.axes):
             arrays[f"axis_{j}"] = a.values.copy()
-        attrs = {"format": RECORD_FORMAT, "format_version": RECORD_VERSION,
+        attrs = {**TABLE_RECORD.stamp(),
                  "axes": [a.name for a in self.grid.axes], "units": [a.unit for a in self.grid.axes],
                  "policy": self.grid.policy, "law": self.law, "ratio": self.ratio,
                  "ratio_warmup": self.ratio_warmup, "enabled": self.enabled,
@@ -506,13 +504,10 @@ class AdaptiveTable:
         return arrays, attrs
 
     @classmethod
-    def from_record(cls, arrays: dict, attrs: dict) -> "AdaptiveTable":
-        fmt = attrs.get("format")
-        if fmt != RECORD_FORMAT:
-            raise TableError(f"not an adaptive-table record (format {fmt!r}, expected {RECORD_FORMAT!r})")
-        if int(attrs.get("format_version", -1)) > RECORD_VERSION:
-            raise TableError(f"adaptive-table record version {attrs.get('format_version')} is newer "
-                             f"than this pwl reads ({RECORD_VERSION})")
+    def from_record(cls, arrays: dict, attrs: dict, where: str = "record") -> "AdaptiveTable":
+        """The table of a record ``(arrays, attrs)`` (:meth:`to_record`); ``where`` names it in
+        errors (:class:`TableError`: another format, a newer version, a missing item)."""
+        check(TABLE_RECORD, where, attrs, error=TableError)
         try:
             names = list(attrs["axes"])
             units = list(attrs.get("units", [""] * len(names)))
@@ -527,22 +522,17 @@ class AdaptiveTable:
                     enabled=attrs.get("enabled", True), update_outside=attrs.get("update_outside", False),
                     ratio_warmup=attrs.get("ratio_warmup", 0.0), **kw)
         except KeyError as e:
-            raise TableError(f"adaptive-table record is missing {e.args[0]!r}") from None
+            raise TableError(f"{where}: adaptive-table record is missing {e.args[0]!r}") from None
         t.n_updates = int(attrs.get("n_updates", 0))
         t.n_outside = int(attrs.get("n_outside", 0))
         return t
 
     def save(self, path, name: str) -> None:
-        """Write this table to ``/tables/<name>`` of the HDF5 file ``path`` (created if missing;
-        an existing file, e.g. a gain database, keeps everything else). Atomic: the new content
-        is written to a temporary copy that replaces the file only when complete."""
-        if not name or "/" in name:
-            raise TableError(f"table name must be non-empty without '/', got {name!r}")
-        with _modify_h5(path) as f:
-            g = f.require_group("tables")
-            if name in g:
-                del g[name]
-            write_record(g.create_group(name), *self.to_record())
+        """Write this table to ``/tables/<name>`` of the HDF5 file ``path`` (:func:`save_tables`:
+        a new adaptive-tables file if missing; an existing gain database or tables file keeps
+        everything else). Atomic: the new content is written to a temporary copy that replaces
+        the file only when complete."""
+        save_tables(path, {name: self.to_record()})
 
     @classmethod
     def load(cls, path, name: str) -> "AdaptiveTable":
@@ -553,14 +543,49 @@ class AdaptiveTable:
         if not h5py.is_hdf5(path):
             raise TableError(f"{path}: not an HDF5 file")
         with h5py.File(path, "r") as f:
-            if "tables" not in f or name not in f["tables"]:
-                have = list(f["tables"]) if "tables" in f else []
-                raise TableError(f"{path}: no table /tables/{name} (tables: {have or 'none'})")
-            rec = read_record(f["tables"][name])
-        try:
-            return cls.from_record(*rec)
-        except TableError as e:
-            raise TableError(f"{path}: /tables/{name}: {e}") from None
+            check((GAIN_DATABASE, TABLES_FILE), path, f, error=TableError)
+            tables = read_tables(f)
+        if name not in tables:
+            raise TableError(f"{path}: no table /tables/{name} (tables: {list(tables) or 'none'})")
+        return cls.from_record(*tables[name], where=f"{path}: /tables/{name}")
+
+
+# ---- the one writer and reader of tables: /tables/<name> of a gain database or a tables file -------
+def write_tables(f, records: dict) -> None:
+    """Write ``records`` (name -> ``(arrays, attrs)``, e.g. :meth:`AdaptiveTable.to_record`) as
+    ``/tables/<name>`` of the open HDF5 file ``f``, replacing tables of the same names."""
+    if not records:
+        return
+    g = f.require_group("tables")
+    for name, rec in records.items():
+        if not name or "/" in name:
+            raise TableError(f"table name must be non-empty without '/', got {name!r}")
+        if name in g:
+            del g[name]
+        formats.write_record(g.create_group(name), *rec)
+
+
+def read_tables(f) -> dict:
+    """name -> ``(arrays, attrs)`` of every ``/tables/<name>`` of the open HDF5 file ``f``."""
+    return {k: formats.read_record(g) for k, g in f["tables"].items()} if "tables" in f else {}
+
+
+def save_tables(path, records: dict) -> None:
+    """Write ``records`` (:func:`write_tables`) into the file ``path``: a new adaptive-tables file
+    (format ``pwl-adaptive-tables``) when it does not exist, else an existing gain database or
+    tables file, atomically (a temporary copy renamed onto ``path``; its seal renewed).
+
+    Raises
+    ------
+    TableError
+        ``path`` is not HDF5, or of another format (named), or a table name is empty or has '/'.
+    """
+    path = os.fspath(path)
+    if os.path.exists(path) and h5py.is_hdf5(path):
+        with h5py.File(path, "r") as f:
+            check((GAIN_DATABASE, TABLES_FILE), path, f, error=TableError)
+    with _modify_h5(path) as f:
+        write_tables(f, records)
 
 
 @contextlib.contextmanager
@@ -570,8 +595,7 @@ def _modify_h5(path):
     try:
         with atomic_h5(path, modify=True) as f:
             if new:
-                f.attrs["format"] = "pwl-adaptive-tables"
-                f.attrs["format_version"] = RECORD_VERSION
+                stamp(f, TABLES_FILE)
             yield f
     except OSError as e:
         if "not an HDF5 file" in str(e):

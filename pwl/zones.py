@@ -16,16 +16,18 @@ box are clipped to its edge (counted).
 """
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 
+import h5py
 import numpy as np
 from numba import njit
 
 from .errors import PwlError
+from . import formats
+from .formats import GAIN_DATABASE, ZONES_FILE, ZONES_RECORD, check, stamp
 from .grid import Axis, AxisError, Grid, locate
-
-RECORD_FORMAT = "pwl-zones"
-RECORD_VERSION = 1
+from .h5io import atomic_h5
 
 
 class ZoneError(PwlError, ValueError):
@@ -172,29 +174,24 @@ class ZoneTable:
 
     # ---- the /zones record of a gain database -------------------------------------------------
     def record(self) -> tuple[dict, dict]:
-        """(arrays, attrs) for :func:`pwl.database.write_record` / ``GainDatabase.zones``."""
+        """(arrays, attrs), the ``/zones`` record (``GainDatabase.zones``; written by :func:`write_zones`)."""
         lab_dtype = np.int8 if self.k <= 127 else np.int16 if self.k <= 32767 else np.int64
         arrays = {"centers": self.centers, "gains": self.gains, "scale": self.scale,
                   "counts": self.counts, "lookup_bp": self.grid.bp, "lookup_off": self.grid.off,
                   "lookup_labels": self.labels.astype(lab_dtype)}
         attrs = dict(self.attrs)
-        attrs.update(format=RECORD_FORMAT, format_version=RECORD_VERSION, k=int(self.k),
-                     gain_form="update", lookup_names=list(self.grid.names),
+        stamp(attrs, ZONES_RECORD)
+        attrs.update(k=int(self.k), gain_form="update", lookup_names=list(self.grid.names),
                      lookup_units=[a.unit for a in self.grid.axes])
         return arrays, attrs
 
     @classmethod
     def from_record(cls, record, where: str = "/zones") -> "ZoneTable":
-        """Check and unpack a record read by :func:`pwl.database.read_record`."""
+        """Check and unpack a record read by :func:`read_zones`."""
         if record is None:
             raise ZoneError(f"{where}: the database has no zones record")
         arrays, attrs = record
-        if attrs.get("format") != RECORD_FORMAT:
-            raise ZoneError(f"{where}: not a {RECORD_FORMAT} record (format = {attrs.get('format')!r}; "
-                            "build zones with linearize.zones)")
-        if int(attrs.get("format_version", -1)) > RECORD_VERSION:
-            raise ZoneError(f"{where}: record version {attrs.get('format_version')} is newer than "
-                            f"this pwl reads ({RECORD_VERSION})")
+        check(ZONES_RECORD, where, attrs, error=ZoneError, hint="build zones with linearize.zones")
         need = ("centers", "gains", "scale", "counts", "lookup_bp", "lookup_off", "lookup_labels")
         missing = [n for n in need if n not in arrays]
         if missing:
@@ -221,3 +218,45 @@ class ZoneTable:
     def nbytes(self) -> int:
         """Bytes of the stored record's arrays (what the zones add to a database)."""
         return int(sum(np.asarray(v).nbytes for v in self.record()[0].values()))
+
+
+# ---- the one writer and reader of zones: a database's /zones group, a stand-alone zones file -------
+def write_zones(f, record) -> None:
+    """Write the record ``(arrays, attrs)`` (:meth:`ZoneTable.record`) as the ``/zones`` group of
+    the open HDF5 file ``f`` (a gain database being written, or a zones file)."""
+    formats.write_record(f.create_group("zones"), *record)
+
+
+def read_zones(f):
+    """The ``/zones`` record ``(arrays, attrs)`` of the open HDF5 file ``f``; None without one."""
+    return formats.read_record(f["zones"]) if "zones" in f else None
+
+
+def save_zones(path, table: ZoneTable) -> None:
+    """A stand-alone zones file (format ``pwl-zones-file``): one ``/zones`` group laid out as
+    inside a gain database; atomic."""
+    with atomic_h5(path) as f:
+        stamp(f, ZONES_FILE)
+        write_zones(f, table.record())
+
+
+def load_zones(path) -> ZoneTable:
+    """The zones of a gain database or of a stand-alone zones file (:func:`save_zones`).
+
+    Raises
+    ------
+    ZoneError
+        Not a gain database or zones file (naming the file, the format found and the formats
+        read), no ``/zones`` group, or a record that cannot be used.
+    """
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise ZoneError(f"{path}: no such file")
+    if not h5py.is_hdf5(path):
+        raise ZoneError(f"{path}: not an HDF5 file")
+    with h5py.File(path, "r") as f:
+        check((GAIN_DATABASE, ZONES_FILE), path, f, error=ZoneError)
+        if "zones" not in f:
+            raise ZoneError(f"{path}: no /zones group")
+        record = read_zones(f)
+    return ZoneTable.from_record(record, where=f"{path}:/zones")

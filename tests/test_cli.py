@@ -20,7 +20,7 @@ ROOT = os.path.join(os.path.dirname(__file__), "..")
 
 #: the modules that make plots (and so legends)
 PLOTTING = ["pwl/cli/demo.py", "pwl/cli/validate.py", "pwl/cli/bias.py", "pwl/cli/biastable.py",
-            "pwl/cli/tables.py", "pwl/cli/zones.py", "pwl/trending.py"]
+            "pwl/cli/tables.py", "pwl/cli/zones.py", "pwl/fleet/trending.py"]
 
 
 # ---- 1. fixed legend places -------------------------------------------------------------------
@@ -113,8 +113,8 @@ def test_every_output_path_is_checked_first(argv, capsys, unwritable):
 
 # ---- 3. pwl trend: percent and time order -----------------------------------------------------
 def test_trend_prints_the_diagnosis_in_percent():
-    from pwl.diagnose import Decision
-    from pwl.trending import EngineTrend, readable_detail
+    from pwl.fleet.diagnose import Decision
+    from pwl.fleet.trending import EngineTrend, readable_detail
 
     units = {"hpt_eff": "%", "hpt_flow": "%", "sensor:T48": "K", "sensor:Wf": "%"}
     assert readable_detail("hpt_eff=-0.01735 hpt_flow=+0.00760", units) == "hpt_eff -1.74 %, hpt_flow +0.76 %"

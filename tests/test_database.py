@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from conftest import make_database
-from pwl import database as dbm
+from pwl import database as dbm, formats
 from pwl.h5io import USERBLOCK, seal
 from pwl.database import GainDatabase
 
@@ -141,7 +141,7 @@ def test_crash_during_save_leaves_no_partial_file(tmp_path, monkeypatch):
 
     def boom(*a, **k):
         raise RuntimeError("disk on fire")
-    monkeypatch.setattr(dbm, "write_record", boom)  # fails after most datasets are written
+    monkeypatch.setattr(formats, "write_record", boom)  # fails after most datasets are written
     with pytest.raises(RuntimeError, match="disk on fire"):
         make_database(seed=2).save(p)
     assert p.read_bytes() == before                      # old file untouched
@@ -150,7 +150,7 @@ def test_crash_during_save_leaves_no_partial_file(tmp_path, monkeypatch):
 
 
 def test_crash_of_first_save_leaves_nothing(tmp_path, monkeypatch):
-    monkeypatch.setattr(dbm, "write_record", lambda *a, **k: 1 / 0)
+    monkeypatch.setattr(formats, "write_record", lambda *a, **k: 1 / 0)
     with pytest.raises(ZeroDivisionError):
         make_database().save(tmp_path / "db.h5")
     assert os.listdir(tmp_path) == []

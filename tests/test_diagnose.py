@@ -6,9 +6,9 @@ import csv
 import numpy as np
 import pytest
 
-from pwl.diagnose import (DiagnosisConfig, EngineSeries, FlightRecord, diagnose_engine, hypotheses,
+from pwl.fleet.diagnose import (DiagnosisConfig, EngineSeries, FlightRecord, diagnose_engine, hypotheses,
                           noise_covariance)
-from pwl.scoring import kappa, score
+from pwl.fleet.scoring import kappa, score
 from pwl.snapshots import SnapshotAccumulator, SteadyConfig
 
 

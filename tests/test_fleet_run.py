@@ -15,7 +15,7 @@ import pytest
 
 from pwl.errors import UsageError
 from pwl.estimator import Estimator
-from pwl.fleet_run import (FAILED, OK, SKIPPED, read_summary, run_many, summary_rows,
+from pwl.fleet.runs import (FAILED, OK, SKIPPED, read_summary, run_many, summary_rows,
                            write_summary)
 from pwl.logs import Log, read_log, write_log
 from pwl.results import FLAG_COUNTS, Result
@@ -107,7 +107,7 @@ def test_process_pool_results_equal_serial_results_exactly(fleet, tmp_path):
 def test_dask_cluster_results_equal_serial_and_resume(fleet, tmp_path):
     distributed = pytest.importorskip("distributed", reason="dask.distributed is not installed "
                                       "(pip install -e '.[test]')")
-    from pwl.fleet_run import local_dask_cluster
+    from pwl.fleet.runs import local_dask_cluster
 
     serial = run_many(DB, fleet, tmp_path / "serial", workers=1)
     with local_dask_cluster(2) as cluster, distributed.Client(cluster) as client:    # 2 processes
@@ -126,7 +126,7 @@ def test_dask_cluster_results_equal_serial_and_resume(fleet, tmp_path):
 
 def test_workers_open_the_database_once_per_process(fleet, tmp_path, monkeypatch):
     """The per-process cache that executors without initializers (Dask) rely on."""
-    from pwl import fleet_run
+    from pwl.fleet import runs as fleet_run
     from pwl.database import GainDatabase
 
     real = GainDatabase.open.__func__
@@ -320,7 +320,7 @@ def test_readers_work_on_thinned_files(fleet, tmp_path, capsys):
     """pwl fleet diagnose and pwl trend read snapshots and attributes only: a thinned file without
     the trajectories gives them the same flight records."""
     from pwl.cli import main
-    from pwl.diagnose import read_flight
+    from pwl.fleet.diagnose import read_flight
 
     full = run_many(DB, fleet[2:], tmp_path / "full", workers=1)
     thin = run_many(DB, fleet[2:], tmp_path / "thin", workers=1, outputs=["h_hat"], every=50)
@@ -365,7 +365,8 @@ NUMBA_PROBE = """
 import os, sys
 import numpy as np
 import pwl.runtime
-from pwl import Axis, Grid, fleet_run, interpolate
+from pwl import Axis, Grid, interpolate
+from pwl.fleet import runs as fleet_run
 fleet_run._prepare_numba(fleet_run.Job('db', 'x', host=sys.argv[1]))
 if sys.argv[2:]:
     interpolate(Grid([Axis('a', [0.0, 1.0])]), np.array([0.0, 2.0]), np.array([[0.5]]))  # compiles

@@ -24,10 +24,10 @@ from models import fleet
 from models.turbofan import H_NAMES, Turbofan
 from pwl.cli import main
 from pwl.database import GainDatabase
-from pwl.diagnose import diagnose_fleet, read_flight
+from pwl.fleet.diagnose import diagnose_fleet, read_flight
 from pwl.estimator import Estimator
 from pwl.logs import Log, write_log
-from pwl.trending import engine_trend, health_summary, line
+from pwl.fleet.trending import engine_trend, health_summary, line
 
 DB = os.path.join(os.path.dirname(__file__), "..", "data", "turbofan_demo.h5")
 ONSET, FLIGHTS = 5, 10

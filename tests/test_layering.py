@@ -1,10 +1,12 @@
 """The dependency direction of DESIGN.md and docs/architecture.md: the rooms and what each may import.
 
-- pwl core (every module of ``pwl`` outside ``pwl.cli`` and ``pwl.bench``) imports neither
-  ``linearize``, ``models``, ``experiments``, ``pwl.bench`` nor ``pwl.cli``, not even inside a
-  function; importing it loads neither those nor ``control`` or ``matplotlib`` (optional extras,
-  imported inside the functions that need them; scipy is not checked: numba itself imports it
-  when installed);
+- pwl core (every module of ``pwl`` outside ``pwl.cli``, ``pwl.bench`` and ``pwl.fleet``) imports
+  neither ``linearize``, ``models``, ``experiments``, ``pwl.fleet``, ``pwl.bench`` nor ``pwl.cli``,
+  not even inside a function; importing it loads neither those nor ``control`` or ``matplotlib``
+  (optional extras, imported inside the functions that need them; scipy is not checked: numba
+  itself imports it when installed);
+- ``pwl.fleet`` (runs of many logs, fleet diagnostics) imports pwl core and itself, no other
+  first-party code; importing it loads neither ``matplotlib`` nor ``control``;
 - ``models`` import neither ``pwl`` nor ``linearize`` (nor ``experiments``);
 - nothing in ``pwl``, ``linearize`` or ``models`` imports ``experiments``, except the ``pwl``
   command's modules (``pwl.cli``), inside their functions only;
@@ -25,7 +27,9 @@ import pwl
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 FIRST_PARTY = ("pwl", "linearize", "models", "experiments", "tests", "benchmarks")
-NOT_CORE = ("pwl.cli", "pwl.bench", "pwl.__main__")
+NOT_CORE = ("pwl.cli", "pwl.bench", "pwl.fleet", "pwl.__main__")
+#: what core imports never (the other rooms)
+NOT_FOR_CORE = ("linearize", "models", "experiments", "pwl.fleet", "pwl.bench", "pwl.cli")
 
 
 def _under(name: str, prefixes) -> bool:
@@ -85,11 +89,10 @@ def _violations(mods, forbidden, allow_nested=()):
 def test_core_imports_only_numpy_numba_h5py():
     mods = core_modules()
     assert "pwl.runtime" in mods and "pwl.database" in mods and "pwl.zones" in mods
-    assert not any(_under(m, ("pwl.bench", "pwl.cli")) for m in mods)
+    assert not any(_under(m, ("pwl.bench", "pwl.cli", "pwl.fleet")) for m in mods)
     code = ("import sys\n"
             + "".join(f"import {m}\n" for m in mods)
-            + "bad = [m for m in ('linearize', 'models', 'control', 'matplotlib', 'experiments', "
-              "'pwl.bench', 'pwl.cli') if m in sys.modules]\n"
+            + f"bad = [m for m in {NOT_FOR_CORE + ('control', 'matplotlib')!r} if m in sys.modules]\n"
             + "print(','.join(bad))\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "", f"pwl core pulled in: {out.stdout.strip()}"
@@ -99,8 +102,25 @@ def test_core_source_imports_no_other_room():
     """Also the imports inside functions, which importing the modules does not run. (Optional
     extras may be imported inside a function: matplotlib for plots, python-control for
     ``GainDatabase.state_space``.)"""
-    bad = _violations(core_modules(), ("linearize", "models", "experiments", "pwl.bench", "pwl.cli"))
+    bad = _violations(core_modules(), NOT_FOR_CORE)
     assert not bad, "\n".join(bad)
+
+
+def test_fleet_imports_core_only():
+    """pwl.fleet sits on core: it imports core and itself, no other room (not even inside a
+    function), and importing it loads neither the other rooms nor matplotlib or control."""
+    mods = [m for m in package_modules(pwl) if _under(m, ("pwl.fleet",))]
+    assert {"pwl.fleet.runs", "pwl.fleet.diagnose", "pwl.fleet.trending", "pwl.fleet.scoring",
+            "pwl.fleet.signatures"} <= set(mods)
+    bad = _violations(mods, ("linearize", "models", "experiments", "pwl.bench", "pwl.cli"))
+    assert not bad, "\n".join(bad)
+    # it does import core (so the test above can fail in the other direction)
+    assert any(_under(name, ("pwl.database",)) for name, _, _ in source_imports("pwl.fleet.runs"))
+    code = ("import sys\n" + "".join(f"import {m}\n" for m in mods)
+            + "print(','.join(m for m in ('linearize', 'models', 'experiments', 'pwl.bench', 'pwl.cli', "
+              "'control', 'matplotlib') if m in sys.modules))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "", f"pwl.fleet pulled in: {out.stdout.strip()}"
 
 
 def test_models_import_neither_pwl_nor_linearize():

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from pwl.estimator import Estimator
-from pwl.fleet_run import run_many
+from pwl.fleet.runs import run_many
 from pwl.h5io import write_strings
 from pwl.results import FORMAT_VERSION, Result, ResultError, file_summary, open_results
 

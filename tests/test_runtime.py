@@ -316,7 +316,7 @@ def test_run_folder_takes_only_flight_logs(tmp_path):
 
 
 def test_result_names_keep_folders_and_refuse_collisions():
-    from pwl.fleet_run import result_names
+    from pwl.fleet.runs import result_names
     assert result_names(["a/f1.h5", "b/f2.h5"]) == ["f1.h5", "f2.h5"]
     assert result_names(["x/ESN1/f.h5", "x/ESN2/f.h5"]) == [os.path.join("ESN1", "f.h5"), os.path.join("ESN2", "f.h5")]
     assert result_names(["q.h5"], ["ESN9/q.h5"]) == ["ESN9/q.h5"]

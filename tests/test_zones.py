@@ -14,7 +14,7 @@ from experiments.ekf import run_ekf, run_sekf
 from linearize import zones as Z
 from models.chen2020 import Chen2020, PlantFunctions, f as chen_f, jac_f as chen_jac_f
 from pwl.database import GainDatabase
-from pwl.zones import ZoneError, ZoneTable
+from pwl.zones import ZoneError, ZoneTable, load_zones, save_zones
 
 from conftest import make_database
 
@@ -300,9 +300,9 @@ def test_zones_record_roundtrip_through_database(tmp_path, build):
     assert t2.grid == build.table.grid and t2.attrs["N"] == 800 and t2.k == 3
     pts = np.random.default_rng(0).uniform(build.samples.lo, build.samples.hi, (50, 3))
     np.testing.assert_array_equal(t2.zone_of(pts), build.table.zone_of(pts))
-    Z.save_zones(tmp_path / "z.h5", build.table)
-    np.testing.assert_array_equal(Z.load_zones(tmp_path / "z.h5").gains, build.table.gains)
-    np.testing.assert_array_equal(Z.load_zones(tmp_path / "db.h5").labels, build.table.labels)
+    save_zones(tmp_path / "z.h5", build.table)
+    np.testing.assert_array_equal(load_zones(tmp_path / "z.h5").gains, build.table.gains)
+    np.testing.assert_array_equal(load_zones(tmp_path / "db.h5").labels, build.table.labels)
     # the placeholder record of the synthetic database is not a zones record: named error
     with pytest.raises(ZoneError, match="not a pwl-zones record"):
         ZoneTable.from_record(make_database().zones)

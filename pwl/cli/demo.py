@@ -48,7 +48,7 @@ def run(args) -> int:
     from ..demo_data import demo_paths
     from ..estimator import Estimator
     from ..logs import read_log
-    from ..trending import health_summary
+    from ..fleet.trending import health_summary
 
     d_db, d_logs = demo_paths()
     db_path = args.database or d_db

@@ -72,7 +72,7 @@ def results_files(paths) -> list[str]:
 def read_flights(files):
     """FlightRecords of the readable results files, and (file, reason) for the others (reported on
     stderr: one corrupt or foreign file must not stop a fleet's diagnosis)."""
-    from ..diagnose import DiagnosisError, read_flight
+    from ..fleet.diagnose import DiagnosisError, read_flight
     records, skipped = [], []
     for f in files:
         try:
@@ -104,8 +104,8 @@ def run_diagnose(args) -> int:
     import numpy as np
 
     from ..database import GainDatabase
-    from ..diagnose import DiagnosisConfig, diagnose_fleet, write_diagnosis
-    from ..trending import detail_units, readable_detail
+    from ..fleet.diagnose import DiagnosisConfig, diagnose_fleet, write_diagnosis
+    from ..fleet.trending import detail_units, readable_detail
 
     check_output(args.output)
     files = results_files(args.results)
@@ -147,7 +147,7 @@ def run_diagnose(args) -> int:
 
 
 def run_score(args) -> int:
-    from ..scoring import plot_confusion, score, table
+    from ..fleet.scoring import plot_confusion, score, table
 
     check_output(args.plot)
     res = score(args.diagnosis, args.truth, args.min_component, args.min_sensor_sigma)

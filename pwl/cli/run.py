@@ -113,7 +113,7 @@ def run(args) -> int:
     from ..database import GainDatabase
     from ..errors import EXIT_FINDINGS, EXIT_INPUT, UsageError
     from ..estimator import Estimator
-    from ..fleet_run import FAILED, SKIPPED, run_many, write_summary
+    from ..fleet.runs import FAILED, SKIPPED, run_many, write_summary
     from ..results import check_every, select_outputs
 
     from .output import check_output
@@ -192,7 +192,7 @@ def _executor(args, n_logs: int):
         except ImportError:
             raise UsageError("--dask needs dask.distributed: pip install 'dask[distributed]'") from None
         if args.dask.startswith("local:"):
-            from ..fleet_run import local_dask_cluster
+            from ..fleet.runs import local_dask_cluster
             try:
                 n = int(args.dask[len("local:"):])
             except ValueError:

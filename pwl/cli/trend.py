@@ -16,8 +16,8 @@ def run(args) -> int:
     import sys
 
     from ..database import GainDatabase
-    from ..diagnose import group_engines
-    from ..trending import engine_trend, plot_trend
+    from ..fleet.diagnose import group_engines
+    from ..fleet.trending import engine_trend, plot_trend
     from .fleet import database_of, read_flights, results_files
     from .output import check_output, plot_or_note
 

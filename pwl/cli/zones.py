@@ -67,7 +67,8 @@ def run(args) -> int:
     if args.database:
         return _run_database(args)
     from experiments.zones import monte_carlo, simulate_runs
-    from linearize.zones import make_zones, sample_gains, save_zones
+    from linearize.zones import make_zones, sample_gains
+    from pwl.zones import save_zones
     from models.chen2020 import Chen2020
 
     plant = Chen2020(x2_power=args.x2_power)

@@ -23,11 +23,12 @@ from typing import NamedTuple
 
 from threadpoolctl import threadpool_limits
 
-from .database import DatabaseError, GainDatabase
-from .errors import UsageError
-from .estimator import Estimator
-from .h5io import attr_str, file_digest
-from .results import (COUNT_KEYS, DEFAULT_COMPRESSION, ResultError, check_every, compression_filters,
+from ..database import DatabaseError, GainDatabase
+from ..errors import PwlError, UsageError
+from ..formats import FLEET_SUMMARY, check
+from ..estimator import Estimator
+from ..h5io import attr_str, file_digest
+from ..results import (COUNT_KEYS, DEFAULT_COMPRESSION, ResultError, check_every, compression_filters,
                       file_summary, open_results, select_outputs, selection_record)
 
 OK, SKIPPED, FAILED = "ok", "skipped", "failed"
@@ -250,22 +251,57 @@ def run_many(db_path, log_paths, outdir, workers: int | None = None, csv: bool =
              progress=None, mode: str = "steady", names=None,
              resample: bool = False, *, channel_map=None, executor=None, outputs=None, every: int = 1,
              compression: str | None = DEFAULT_COMPRESSION, force: bool = False) -> list[LogRun]:
-    """Estimate every log into ``outdir`` (one results file per log, see :func:`run_log`).
+    """Estimate every log into ``outdir``: one results file per log (see :func:`run_log`).
 
-    ``mode``, ``resample``: the estimator's mode (steady, untuned, online, zones) and logs
-    resampled to the database's dt, as for :class:`Estimator`; ``channel_map``: a channel-map TOML path that
-    every log is read through (:mod:`pwl.channel_map`). ``names``: results names relative to
-    ``outdir`` (see :func:`result_names`; folder trees such as a fleet's ``ESN001/flight_000.h5``
-    keep their sub-folders). ``outputs``, ``every``, ``compression``: what the results files hold
-    (see :meth:`Estimator.run_file`). ``force``: recompute logs whose results are already there.
+    A log whose results file already holds what this call would write (same database digest,
+    mode, outputs, thinning) is skipped (resume); a log that fails is reported and the others
+    still complete. Write the fleet summary with :func:`write_summary`.
 
-    ``executor``: any object whose ``submit(fn, *args)`` returns a future with ``result()``: a
-    ``concurrent.futures`` executor, a ``dask.distributed.Client`` (its workers must see the
-    database, the logs and ``outdir`` at the same paths); default: a process pool of ``workers``
-    processes (one: this process). It is not shut down here.
+    Parameters
+    ----------
+    db_path : str, path-like or GainDatabase
+        The gain database.
+    log_paths : sequence of str or path-like
+        The logs (any format :func:`pwl.read_log` reads).
+    outdir : str or path-like
+        Folder of the results files (created).
+    workers : int, optional
+        Processes of the default process pool (one: this process; None: the cores).
+    csv : bool
+        Write CSV results instead of HDF5.
+    progress : callable, optional
+        ``progress(done, total, item)``, called as each log finishes (item: its :class:`LogRun`).
+    mode : {"steady", "untuned", "online", "zones"}
+        The estimator's mode (:class:`pwl.Estimator`).
+    names : sequence of str, optional
+        Results names relative to ``outdir`` (see :func:`result_names`; default: folder trees
+        such as a fleet's ``ESN001/flight_000.h5`` keep their sub-folders).
+    resample : bool
+        Resample logs not sampled at the database's dt (else such a log fails).
+    channel_map : str or path-like, optional
+        A channel-map TOML file every log is read through (:mod:`pwl.channel_map`).
+    executor : object, optional
+        Anything whose ``submit(fn, *args)`` returns a future with ``result()``: a
+        ``concurrent.futures`` executor, a ``dask.distributed.Client`` (its workers must see the
+        database, the logs and ``outdir`` at the same paths); default: a process pool of
+        ``workers`` processes. It is not shut down here.
+    outputs, every, compression
+        What the results files hold (see :meth:`pwl.Estimator.run_file`).
+    force : bool
+        Recompute logs whose results are already there.
 
-    Returns a :class:`LogRun` per log in input order; a log that fails is reported and the others
-    still complete. ``progress(done, total, item)`` is called as each log finishes.
+    Returns
+    -------
+    list of LogRun
+        One per log, in input order: its results path, status (``ok``, ``skipped`` or
+        ``failed``), flag counts, error message and summary row.
+
+    Raises
+    ------
+    DatabaseError
+        The database cannot be opened.
+    UsageError
+        A bad mode, output name, ``every`` or compression (before any log runs).
     """
     logs = [os.fspath(p) for p in log_paths]
     outs = [output_path(p, outdir, csv, n) for p, n in zip(logs, result_names(logs, names))]
@@ -360,10 +396,15 @@ def summary_rows(results) -> list[dict]:
     return rows
 
 
+class SummaryError(PwlError, ValueError):
+    """A file that is not a fleet summary this pwl reads (names the file and what it found)."""
+
+
 def write_summary(results, outdir) -> str:
     """Write the fleet summary of ``results`` (:func:`run_many`) to ``outdir/summary.parquet``
-    (with pandas and pyarrow) or else ``outdir/summary.csv``, atomically; removes the other of
-    the two so no stale summary is left. Returns the path written."""
+    (with pandas and pyarrow; its format ``pwl-fleet-summary`` and version in the file's
+    metadata) or else ``outdir/summary.csv`` (known by its header row), atomically; removes the
+    other of the two so no stale summary is left. Returns the path written."""
     rows = summary_rows(results)
     cols = list(dict.fromkeys([*SUMMARY_COLUMNS, *(c for r in rows for c in r)]))
     try:
@@ -375,7 +416,9 @@ def write_summary(results, outdir) -> str:
     path = os.path.join(os.fspath(outdir), "summary.parquet" if pd is not None else "summary.csv")
     tmp = os.path.join(os.fspath(outdir), f".{os.path.basename(path)}.{os.getpid()}.tmp")
     if pd is not None:
-        pd.DataFrame(rows, columns=cols).to_parquet(tmp, index=False)
+        df = pd.DataFrame(rows, columns=cols)
+        df.attrs.update(FLEET_SUMMARY.stamp())     # stored in the Parquet metadata by pandas
+        df.to_parquet(tmp, index=False)
     else:
         with open(tmp, "w", newline="") as fh:
             w = csv.DictWriter(fh, cols, restval="")
@@ -388,11 +431,31 @@ def write_summary(results, outdir) -> str:
     return path
 
 
+def _summary_stamp(columns, attrs=None) -> tuple:
+    """(format, version) of a summary: its stored stamp, else (a CSV, or Parquet written before
+    the stamp) the fleet summary's when its columns begin with :data:`SUMMARY_COLUMNS`."""
+    if attrs and "format" in attrs:
+        return attrs.get("format"), int(attrs.get("format_version", -1))
+    n = len(SUMMARY_COLUMNS)
+    return (FLEET_SUMMARY.name if tuple(columns[:n]) == SUMMARY_COLUMNS else None), None
+
+
 def read_summary(path) -> list[dict]:
     """The rows of a fleet summary written by :func:`write_summary` (Parquet needs pandas and
-    pyarrow; CSV values are strings, empty where None)."""
+    pyarrow; CSV values are strings, empty where None).
+
+    Raises
+    ------
+    SummaryError
+        Not a fleet summary (another format, or other columns) or of a newer version; names the
+        file and what it found.
+    """
     if os.fspath(path).endswith(".parquet"):
         import pandas as pd
-        return pd.read_parquet(path).to_dict("records")
+        df = pd.read_parquet(path)
+        check(FLEET_SUMMARY, path, *_summary_stamp(list(df.columns), df.attrs), error=SummaryError)
+        return df.to_dict("records")
     with open(path, newline="") as fh:
-        return list(csv.DictReader(fh))
+        reader = csv.DictReader(fh)
+        check(FLEET_SUMMARY, path, *_summary_stamp(list(reader.fieldnames or [])), error=SummaryError)
+        return list(reader)

@@ -6,7 +6,7 @@ in natural order, so flight_2 comes before flight_10):
 - the Kalman filter's health estimates per flight (the mean over the flight's steady snapshot, or
   :func:`health_summary` of a whole run) with a least-squares line per parameter (level at the
   newest flight, slope per flight, standard error);
-- the diagnosis of :mod:`pwl.diagnose` for this engine alone (detection over the whole history,
+- the diagnosis of :mod:`pwl.fleet.diagnose` for this engine alone (detection over the whole history,
   isolation among components and sensors, size, drift rate): the tuner estimates are projections
   of 10 health parameters and 8 sensors onto 7 tuners, so they show *that* the engine changed but
   cannot by themselves say which component or sensor did; the diagnosis does.
@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .database import GainDatabase
+from ..database import GainDatabase
 from .diagnose import (DiagnosisConfig, Decision, FlightRecord, diagnose_engine, engine_series,
                        noise_covariance, prepare)
 
@@ -64,7 +64,7 @@ def line(x, y):
 def detail_units(db: GainDatabase) -> dict[str, str]:
     """The unit of every fitted parameter a diagnosis ``detail`` can name ('%': a fraction, shown
     in percent): health parameters and input biases are fractions, sensed-output biases are
-    offsets in the sensor's unit (:mod:`pwl.signatures`)."""
+    offsets in the sensor's unit (:mod:`pwl.fleet.signatures`)."""
     units = dict.fromkeys(db.names["h"], "%")
     units.update({f"sensor:{c}": "%" for c in db.names["u"]})
     units.update({f"sensor:{c}": u for c, u in zip(db.names["y"], db.units["y"])})

@@ -29,7 +29,7 @@ import os
 
 import numpy as np
 
-from .errors import PwlError
+from ..errors import PwlError
 
 COMPONENT_PREFIXES = ("fan", "lpc", "hpc", "hpt", "lpt")
 

@@ -26,9 +26,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .database import GainDatabase
-from .interp import interpolate
-from .errors import PwlError
+from ..database import GainDatabase
+from ..interp import interpolate
+from ..errors import PwlError
 
 
 class DiagnosisError(PwlError, ValueError):

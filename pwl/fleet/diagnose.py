@@ -2,7 +2,7 @@
 
 Per engine, every flight's longest steady snapshot (:mod:`pwl.snapshots`) is reduced to relative
 deviations d from the trim at its measured operating point, with signature columns S for every
-health parameter and sensor bias (:mod:`pwl.signatures`). Over the flights 0..k seen so far:
+health parameter and sensor bias (:mod:`pwl.fleet.signatures`). Over the flights 0..k seen so far:
 
     d_j = a + b t_j + f_j(tau) S_c theta + e_j,     e_j ~ N(0, Sigma)
 
@@ -48,10 +48,11 @@ import h5py
 import numpy as np
 from scipy import stats
 
-from .database import GainDatabase
-from .h5io import SealError, attr_str, check_seal
+from ..database import GainDatabase
+from ..formats import RESULTS, check
+from ..h5io import SealError, attr_str, check_seal
 from .signatures import DiagnosisError, Signatures
-from .snapshots import Snapshots
+from ..snapshots import Snapshots
 
 
 @dataclass(frozen=True)
@@ -136,8 +137,7 @@ def read_flight(path) -> FlightRecord:
     try:
         check_seal(path)
         with h5py.File(path, "r") as f:
-            if attr_str(f, "format") != "pwl-estimates":
-                raise DiagnosisError(f"{path}: not a pwl results file")
+            check(RESULTS, path, f, error=DiagnosisError)
             if "snapshots" not in f:
                 raise DiagnosisError(f"{path}: has no /snapshots (results of an older pwl run: run it again)")
             snaps = Snapshots.load(f["snapshots"])
