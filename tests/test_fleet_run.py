@@ -175,6 +175,23 @@ def test_rerun_skips_finished_logs_and_recomputes_changed_ones(fleet, tmp_path):
     assert {r.status for r in forced} == {OK}
 
 
+def test_run_many_own_pool_is_one_whose_workers_die_with_it(tmp_path, monkeypatch):
+    """Without an executor, run_many makes its pool with pwl.workers.process_pool (workers end
+    when the process that started them dies, even by SIGKILL), not a plain process pool."""
+    import pwl.fleet.runs as runs
+    from pwl import workers
+
+    made = []
+
+    def recording_pool(n):
+        made.append(n)
+        return workers.process_pool(n)
+    monkeypatch.setattr(runs, "process_pool", recording_pool)
+    logs = [slice_log(tmp_path / "logs" / f"f{i}.h5", "flight_new", 3000 * i, n=600) for i in range(2)]
+    res = run_many(DB, logs, tmp_path / "out", workers=2)
+    assert made == [2] and {r.status for r in res} == {OK}
+
+
 def test_killed_run_then_rerun_repeats_no_finished_flight(tmp_path):
     n = 12
     for i in range(n):

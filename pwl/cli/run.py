@@ -213,7 +213,7 @@ def _executor(args, n_logs: int):
     if workers == 1:
         yield None
         return
-    from linearize.build import process_pool
+    from ..workers import process_pool
     pool = process_pool(workers)
     try:
         yield pool

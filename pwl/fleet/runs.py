@@ -17,7 +17,7 @@ import os
 import socket
 import sys
 import threading
-from concurrent.futures import Future, ProcessPoolExecutor, as_completed
+from concurrent.futures import Future, as_completed
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -28,6 +28,7 @@ from ..errors import PwlError, UsageError
 from ..formats import FLEET_SUMMARY, check
 from ..estimator import Estimator
 from ..h5io import attr_str, file_digest
+from ..workers import process_pool
 from ..results import (COUNT_KEYS, DEFAULT_COMPRESSION, ResultError, check_every, compression_filters,
                       file_summary, open_results, select_outputs, selection_record)
 
@@ -318,7 +319,7 @@ def run_many(db_path, log_paths, outdir, workers: int | None = None, csv: bool =
     own = None
     if executor is None:
         n = max(1, min(len(logs), workers or os.cpu_count() or 1))
-        executor = own = ProcessPoolExecutor(n) if n > 1 else None
+        executor = own = process_pool(n) if n > 1 else None   # workers die with this process
     batch = 1
     if hasattr(executor, "get_executor"):         # a dask.distributed.Client
         executor = executor.get_executor(pure=False)
