@@ -877,22 +877,7 @@ class PackedModel:
             aug[k] = np.swapaxes(aug[k], -1, -2)
         parts = ("A", "B", "C", "D", "F", "G") + (() if zones is not None else ("K",)) + (
             ("Q", "R") if online else ())
-        z_gains, z_labels = np.zeros(0), np.zeros(0, dtype=np.int64)
-        if zones is not None:
-            same = zones.grid.names == dg.names and all(
-                np.array_equal(a.values, b.values) for a, b in zip(zones.grid.axes, dg.axes))
-            if not same:
-                raise DatabaseError(f"{db.path}: the zones' lookup grid {zones.grid.names} is not the "
-                                 f"dynamics grid {dg.names}: zones of this database are built by "
-                                 "linearize.zones.database_zones")
-            zg = zones.gains.copy()
-            if zg.shape[1:] != db.kalman["K"].shape[-2:]:
-                raise DatabaseError(f"{db.path}: zone gains {zg.shape[1:]} do not match K "
-                                 f"{db.kalman['K'].shape[-2:]}")
-            if not tune:
-                zg[:, nx:, :] = 0.0
-            z_gains = np.ascontiguousarray(np.swapaxes(zg, -1, -2).reshape(-1))
-            z_labels = np.ascontiguousarray(zones.flat_labels, dtype=np.int64)
+        z_gains, z_labels = _pack_zones(db, zones, tune)
         if online:
             aug["Q"], aug["R"] = db.kalman["Q"], db.kalman["R"]
         dyn_tab = np.ascontiguousarray(np.concatenate(
@@ -908,38 +893,13 @@ class PackedModel:
         t_pidx = np.array([p.index(n) for n in tg.names], dtype=np.int64)
         d_pidx = np.array([p.index(n) for n in dg.names], dtype=np.int64)
         dims = np.array([db.n(k) for k in "xuyzqh"], dtype=np.int64)
-        zero = {k: np.zeros((db.n(k), 2)) for k in "xuyz"}
-        ex = db.correction.exponents if db.correction is not None else zero
-        # exponents of the schedule channels: from whichever kind names the channel
-        by_name = {}
-        for k in "xuyz":
-            for j, name in enumerate(db.names[k]):
-                by_name.setdefault(name, ex[k][j])
         chans = [c for c, _, _ in db.schedule]
         s_corr = np.array([bool(c) for _, c, _ in db.schedule])
-        ex_s = np.zeros((len(chans), 2))
-        for j, (c, corr, _) in enumerate(db.schedule):
-            if corr:
-                if c not in by_name:
-                    raise DatabaseError(f"{db.path}: scheduling channel {c!r} is marked corrected but has "
-                                     f"no correction exponents")
-                ex_s[j] = by_name[c]
-        every = np.concatenate([ex[k] for k in "xuyz"] + [ex_s]).astype(np.float64)
-        pairs = [(0.0, 0.0)] + sorted({tuple(e) for e in every} - {(0.0, 0.0)})
-        classes = np.array([pairs.index(tuple(e)) for e in every], dtype=np.int64)
-        ny = db.n("y")
-        ko_tab, ko_avail = np.zeros((1, 0)), np.zeros(ny, dtype=np.int64)
+        pairs, classes = _correction_classes(db)
+        ko_tab, ko_avail = np.zeros((1, 0)), np.zeros(db.n("y"), dtype=np.int64)
         if "K_out" in db.kalman and zones is None and not online:
-            ko = np.moveaxis(db.kalman["K_out"].reshape((ny, dg.size, na, ny)), 0, 1).copy()
-            if not tune:
-                ko[..., nx:, :] = 0.0
-            ko_tab = np.ascontiguousarray(np.swapaxes(ko, -1, -2).reshape(dg.size * ny, ny * na))
-            avail = (db.kalman["out_status"].reshape(ny, -1) != OUT_NONE).astype(np.int64)
-            if "out_h_ratio" in db.kalman and tune:   # 2: available, the health estimates hold
-                weak = db.kalman["out_h_ratio"].reshape(ny, dg.size, -1).max(axis=-1) > health_hold
-                avail += avail * weak
-            ko_avail = np.ascontiguousarray(avail.T.reshape(-1))
-        return cls(trim_tab, dyn_tab, t_pidx, d_pidx, dims, np.array(pairs, dtype=np.float64), classes,
+            ko_tab, ko_avail = _pack_sensor_out(db, tune, health_hold)
+        return cls(trim_tab, dyn_tab, t_pidx, d_pidx, dims, pairs, classes,
                    np.array([float(s) for _, _, s in db.schedule]), s_corr, chans,
                    db.correction.theta_channel if db.correction else None,
                    db.correction.delta_channel if db.correction else None, online, p_tab,
@@ -973,3 +933,64 @@ class PackedModel:
         tg, dg = db.trim_grid, db.dyn_grid
         return Grids(tg.bp, tg.off, tg.strides, t_pidx, dg.bp, dg.off, dg.strides, d_pidx,
                      bool(tg.extrapolate))
+
+
+def _pack_zones(db: GainDatabase, zones, tune: bool):
+    """(z_gains flat column-major (zones * na * ny,), z_labels (dyn nodes,) int64) of a
+    :class:`pwl.zones.ZoneTable` on ``db``'s dynamics grid, or empty arrays without zones."""
+    if zones is None:
+        return np.zeros(0), np.zeros(0, dtype=np.int64)
+    dg = db.dyn_grid
+    same = zones.grid.names == dg.names and all(
+        np.array_equal(a.values, b.values) for a, b in zip(zones.grid.axes, dg.axes))
+    if not same:
+        raise DatabaseError(f"{db.path}: the zones' lookup grid {zones.grid.names} is not the "
+                            f"dynamics grid {dg.names}: zones of this database are built by "
+                            "linearize.zones.database_zones")
+    zg = zones.gains.copy()
+    if zg.shape[1:] != db.kalman["K"].shape[-2:]:
+        raise DatabaseError(f"{db.path}: zone gains {zg.shape[1:]} do not match K "
+                            f"{db.kalman['K'].shape[-2:]}")
+    if not tune:
+        zg[:, db.n("x"):, :] = 0.0
+    return (np.ascontiguousarray(np.swapaxes(zg, -1, -2).reshape(-1)),
+            np.ascontiguousarray(zones.flat_labels, dtype=np.int64))
+
+
+def _correction_classes(db: GainDatabase):
+    """The distinct parameter-correction exponent pairs (nc, 2), pair 0 = (0, 0), and the pair
+    of every channel (nx+nu+ny+nz+ns,) int64 in the order x, u, y, z, schedule (a schedule
+    channel takes the exponents of the x/u/y/z channel of its name)."""
+    zero = {k: np.zeros((db.n(k), 2)) for k in "xuyz"}
+    ex = db.correction.exponents if db.correction is not None else zero
+    by_name = {}
+    for k in "xuyz":
+        for j, name in enumerate(db.names[k]):
+            by_name.setdefault(name, ex[k][j])
+    ex_s = np.zeros((len(db.schedule), 2))
+    for j, (c, corr, _) in enumerate(db.schedule):
+        if corr:
+            if c not in by_name:
+                raise DatabaseError(f"{db.path}: scheduling channel {c!r} is marked corrected but has "
+                                    f"no correction exponents")
+            ex_s[j] = by_name[c]
+    every = np.concatenate([ex[k] for k in "xuyz"] + [ex_s]).astype(np.float64)
+    pairs = [(0.0, 0.0)] + sorted({tuple(e) for e in every} - {(0.0, 0.0)})
+    return (np.array(pairs, dtype=np.float64),
+            np.array([pairs.index(tuple(e)) for e in every], dtype=np.int64))
+
+
+def _pack_sensor_out(db: GainDatabase, tune: bool, health_hold: float):
+    """(ko_tab (dyn nodes * ny, ny * na) the sensor-out gains column-major, row node * ny + j;
+    ko_avail (dyn nodes * ny,) int64: 0 none, 1 gain, 2 gain and the health estimates hold)."""
+    dg, ny, nx = db.dyn_grid, db.n("y"), db.n("x")
+    na = nx + db.n("q")
+    ko = np.moveaxis(db.kalman["K_out"].reshape((ny, dg.size, na, ny)), 0, 1).copy()
+    if not tune:
+        ko[..., nx:, :] = 0.0
+    ko_tab = np.ascontiguousarray(np.swapaxes(ko, -1, -2).reshape(dg.size * ny, ny * na))
+    avail = (db.kalman["out_status"].reshape(ny, -1) != OUT_NONE).astype(np.int64)
+    if "out_h_ratio" in db.kalman and tune:
+        weak = db.kalman["out_h_ratio"].reshape(ny, dg.size, -1).max(axis=-1) > health_hold
+        avail += avail * weak
+    return ko_tab, np.ascontiguousarray(avail.T.reshape(-1))
