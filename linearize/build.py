@@ -532,6 +532,10 @@ def health_std(P, V_pinv, nx: int) -> np.ndarray:
     return np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", V_pinv, P[nx:, nx:], V_pinv), 0.0))
 
 
+#: largest stored health std ratio (a parameter a sensor-out set cannot see at all)
+RATIO_CAP = 1e6
+
+
 def sensor_out_gains(aug, Q, R, V_pinv, dg, usable, sensors, log=print):
     """Steady-state gains for every sensor-out set (all sensors but one), so that the runtime
     keeps updating from the others when one sensor is missing (a dead thermocouple), and how much
@@ -544,8 +548,9 @@ def sensor_out_gains(aug, Q, R, V_pinv, dg, usable, sensors, log=print):
     without that sensor) or OUT_NONE (no point can do without sensor j: the tuners are not
     detectable without it; the runtime then skips the update), and out_h_ratio (ny, n, nh): the
     steady-state standard deviation of each health estimate without sensor j over its value with
-    all sensors (1: that sensor adds nothing to it; 0 where OUT_NONE): the runtime holds the
-    health estimates while a sensor they depend on is out (``pwl.runtime.HEALTH_HOLD_RATIO``).
+    all sensors (1: that sensor adds nothing to it; at most RATIO_CAP; 0 where OUT_NONE): the
+    runtime holds the health estimates while a sensor they depend on is out
+    (``pwl.runtime.HEALTH_HOLD_RATIO``).
     Cost: ny more Riccati solves per point, ny times the size of /kalman/K in the file."""
     ny, n = R.shape[-1], len(aug)
     na = Q.shape[-1]
@@ -567,7 +572,8 @@ def sensor_out_gains(aug, Q, R, V_pinv, dg, usable, sensors, log=print):
                 continue
             ok[i] = True
             s = health_std(Pj, V_pinv, nx)   # a parameter no tuner reaches has 0 / 0: ratio 1
-            ratio[j, i] = np.where(s_all[i] > 0, s / np.where(s_all[i] > 0, s_all[i], 1.0), 1.0)
+            r = np.where(s_all[i] > 0, s / np.where(s_all[i] > 0, s_all[i], 1.0), 1.0)
+            ratio[j, i] = np.nan_to_num(np.minimum(r, RATIO_CAP), nan=RATIO_CAP)   # stored finite
         donor = nearest_good(dg, ok)
         if (donor < 0).all():
             log(f"kalman: without sensor {sensors[j]} no point has a detectable gain "
