@@ -247,7 +247,7 @@ def test_validate_help_states_the_limits(capsys):
     out = " ".join(capsys.readouterr().out.split())
     assert "--max-error PCT" in out and "default 2" in out and "% of the plant's value" in out
     assert "--max-sm-error POINTS" in out and "percentage points (default 0.5)" in out
-    assert "--transient-alts M,M,..." in out and "(default 0,6000,12000" in out
+    assert "--transient-alts M,M,..." in out and "(default grid" in out
     assert "exit status 1" in out
 
 
@@ -346,3 +346,19 @@ def test_tuner_selection_in_a_process_pool_equals_serial(linear_db):
     res = minimize(lambda w: float(envelope_mse(pts, make(w), Ph, targets).sum()), np.zeros(2),
                    method="L-BFGS-B", options={"maxiter": 15, "eps": 1e-5})
     np.testing.assert_allclose(O1, make(res.x), atol=1e-8)
+
+
+def test_default_transient_altitudes_are_the_trim_grids():
+    """--transient-alts grid (the default): the lowest, middle and highest altitude of the
+    database's trim grid (so a database topped below 12000 m is not refused), none without an
+    altitude axis."""
+    from pwl.cli.validate import TRANSIENT_ALTS, parse_alts
+    from pwl.database import GainDatabase
+    from pwl.demo_data import demo_paths
+
+    db = GainDatabase.open(demo_paths()[0])
+    alt = [a for a in db.trim_grid.axes if a.name == "alt"][0]
+    assert TRANSIENT_ALTS == "grid"
+    assert parse_alts("grid", db) == [alt.values[0], 0.5 * (alt.values[0] + alt.values[-1]), alt.values[-1]]
+    assert parse_alts("0, 3000", db) == [0.0, 3000.0] and parse_alts("none", db) == []
+    assert parse_alts("grid", None) == []
