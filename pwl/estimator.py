@@ -121,7 +121,7 @@ class Estimator:
         self._limits = self._column_limits()
         self._VT = np.ascontiguousarray(self.db.tuner["V_pinv"].T)
         self._model = self.pm.record(self.db.tuner["V_pinv"], self._misfit_gate())
-        self._grids = PackedModel.grids(self.db, self.pm.t_pidx, self.pm.d_pidx)
+        self._grids = self.pm.grids(self.db)
         hr = db.attrs.get("health_ranges") or {}
         self._h_range = tuple(np.array([hr.get(h, (-np.inf, np.inf))[i] for h in db.names["h"]],
                                        dtype=np.float64) for i in (0, 1))

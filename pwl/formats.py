@@ -13,6 +13,8 @@ in the Parquet file's metadata, and a CSV summary is known by its header row.
 from __future__ import annotations
 
 import json
+import os
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import h5py
@@ -172,3 +174,18 @@ def read_record(group) -> tuple[dict, dict]:
     """(arrays, attrs) of a record written by :func:`write_record`."""
     arrays = {k: d[()] for k, d in group.items() if isinstance(d, h5py.Dataset)}
     return arrays, json.loads(attr_str(group, "attrs_json", "{}"))
+
+
+@contextmanager
+def open_checked(path, kinds, error=FormatError):
+    """Open the HDF5 file ``path`` read-only after the checks every reader makes (it exists, it
+    is HDF5, its format is one of ``kinds``: :func:`check`); yields the open file. ``error``: the
+    reader's exception class, raised with a message naming the file."""
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise error(f"{path}: no such file")
+    if not h5py.is_hdf5(path):
+        raise error(f"{path}: not an HDF5 file")
+    with h5py.File(path, "r") as f:
+        check(kinds, path, f, error=error)
+        yield f

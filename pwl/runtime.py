@@ -927,11 +927,10 @@ class PackedModel:
                      self.z_labels, np.ascontiguousarray(gate, dtype=np.float64), self.ko_tab, self.ko_avail,
                      self.sub_tab)
 
-    @staticmethod
-    def grids(db: GainDatabase, t_pidx: np.ndarray, d_pidx: np.ndarray) -> Grids:
-        """The kernel's :class:`Grids` record of ``db``."""
+    def grids(self, db: GainDatabase) -> Grids:
+        """The kernel's :class:`Grids` record of ``db`` (the database this model packs)."""
         tg, dg = db.trim_grid, db.dyn_grid
-        return Grids(tg.bp, tg.off, tg.strides, t_pidx, dg.bp, dg.off, dg.strides, d_pidx,
+        return Grids(tg.bp, tg.off, tg.strides, self.t_pidx, dg.bp, dg.off, dg.strides, self.d_pidx,
                      bool(tg.extrapolate))
 
 

@@ -40,7 +40,7 @@ from numba import njit
 
 from .errors import PwlError
 from . import formats
-from .formats import GAIN_DATABASE, TABLE_RECORD, TABLES_FILE, check, stamp
+from .formats import GAIN_DATABASE, TABLE_RECORD, TABLES_FILE, check, open_checked, stamp
 from .grid import Axis, Grid, locate
 from .h5io import atomic_h5
 from .interp import corner_weights, interp_many
@@ -538,12 +538,7 @@ class AdaptiveTable:
     def load(cls, path, name: str) -> "AdaptiveTable":
         """Read ``/tables/<name>`` of an HDF5 file (a gain database or a tables file)."""
         path = os.fspath(path)
-        if not os.path.exists(path):
-            raise TableError(f"{path}: no such file")
-        if not h5py.is_hdf5(path):
-            raise TableError(f"{path}: not an HDF5 file")
-        with h5py.File(path, "r") as f:
-            check((GAIN_DATABASE, TABLES_FILE), path, f, error=TableError)
+        with open_checked(path, (GAIN_DATABASE, TABLES_FILE), TableError) as f:
             tables = read_tables(f)
         if name not in tables:
             raise TableError(f"{path}: no table /tables/{name} (tables: {list(tables) or 'none'})")

@@ -19,13 +19,12 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 
-import h5py
 import numpy as np
 from numba import njit
 
 from .errors import PwlError
 from . import formats
-from .formats import GAIN_DATABASE, ZONES_FILE, ZONES_RECORD, check, stamp
+from .formats import GAIN_DATABASE, ZONES_FILE, ZONES_RECORD, check, open_checked, stamp
 from .grid import Axis, AxisError, Grid, locate
 from .h5io import atomic_h5
 
@@ -250,12 +249,7 @@ def load_zones(path) -> ZoneTable:
         read), no ``/zones`` group, or a record that cannot be used.
     """
     path = os.fspath(path)
-    if not os.path.exists(path):
-        raise ZoneError(f"{path}: no such file")
-    if not h5py.is_hdf5(path):
-        raise ZoneError(f"{path}: not an HDF5 file")
-    with h5py.File(path, "r") as f:
-        check((GAIN_DATABASE, ZONES_FILE), path, f, error=ZoneError)
+    with open_checked(path, (GAIN_DATABASE, ZONES_FILE), ZoneError) as f:
         if "zones" not in f:
             raise ZoneError(f"{path}: no /zones group")
         record = read_zones(f)
