@@ -14,8 +14,9 @@ from .database import GainDatabase
 from .grid import Axis, Grid
 from .h5io import atomic_h5
 from .logs import Log, LogError, read_header, read_log, read_rows, resample, sample_interval
-from .runtime import (FLAG_DYN_OUTSIDE, FLAG_NOT_STARTED, FLAG_TRIM_OUTSIDE, HEALTH_HOLD_RATIO, MISFIT_SIGMAS, Bias,
-                      Filter, Inputs, Outputs, PackedModel, blank_implausible, filter_loop, report, screen)
+from .runtime import (FLAG_DYN_OUTSIDE, FLAG_NOT_STARTED, FLAG_TRIM_OUTSIDE, HEALTH_HOLD_RATIO, MISFIT_SIGMAS,
+                      STUCK_AFTER, STUCK_SIGMAS, Bias, Filter, Inputs, Outputs, PackedModel, blank_implausible, filter_loop, report, screen,
+                      state_layout)
 from .results import LOG_ATTRS, Result, append_rows, init_result_file
 from .snapshots import SNAPSHOT_OUTPUTS, SnapshotAccumulator, SteadyConfig
 from .errors import PwlError, UsageError
@@ -73,6 +74,16 @@ class Estimator:
         How log files name and scale their channels (:mod:`pwl.channel_map`).
     health_hold : float
         See below.
+    misfit_sigmas : float
+        The misfit gate in sensor standard deviations (the database's R relative to the trims;
+        default 12): a sensor whose residual exceeds it is flagged FLAG_MISFIT and, while such
+        sensors are fewer than half the present ones, left out of the update like a missing one
+        (a spike, a failed sensor); ``float("inf")``: never.
+    stuck_after : float
+        Seconds (default 2) a sensor's value must stay exactly the same before it counts as stuck:
+        from then on, while its prediction has moved more than STUCK_SIGMAS (4) sensor standard
+        deviations since the value froze, it is left out of the update (FLAG_STUCK) until its
+        value changes. ``float("inf")``: never.
 
     State persists across ``run`` / ``step`` calls until :meth:`reset` (one flight = reset,
     then run).
@@ -87,7 +98,8 @@ class Estimator:
 
     def __init__(self, db, mode: str = "steady", *, q0=None, bias: dict | None = None,
                  health_std: bool = True, resample: bool = False, channel_map=None,
-                 health_hold: float = HEALTH_HOLD_RATIO):
+                 health_hold: float = HEALTH_HOLD_RATIO, misfit_sigmas: float = MISFIT_SIGMAS,
+                 stuck_after: float = STUCK_AFTER):
         if mode not in MODES:
             raise UsageError(f"estimator mode {mode!r}: one of {', '.join(MODES)}")
         self.mode = mode
@@ -120,7 +132,14 @@ class Estimator:
         self.ranges = {c: (lo, hi) for c, (_, lo, hi) in lc.items()}
         self._limits = self._column_limits()
         self._VT = np.ascontiguousarray(self.db.tuner["V_pinv"].T)
-        self._model = self.pm.record(self.db.tuner["V_pinv"], self._misfit_gate())
+        if not (misfit_sigmas > 0 and stuck_after >= 0):
+            raise UsageError(f"misfit_sigmas {misfit_sigmas} must be > 0 and stuck_after {stuck_after} >= 0 s")
+        self._checks = {"hold": (health_hold, HEALTH_HOLD_RATIO), "misfit": (misfit_sigmas, MISFIT_SIGMAS),
+                        "stuck": (stuck_after, STUCK_AFTER)}   # (value, default)
+        sd = self._sensor_sd()
+        stuck_n = min(np.ceil(stuck_after / self.db.dt), 2.0 ** 62)
+        self._model = self.pm.record(self.db.tuner["V_pinv"], np.stack([misfit_sigmas * sd, STUCK_SIGMAS * sd]),
+                                     int(stuck_n))
         self._grids = self.pm.grids(self.db)
         hr = db.attrs.get("health_ranges") or {}
         self._h_range = tuple(np.array([hr.get(h, (-np.inf, np.inf))[i] for h in db.names["h"]],
@@ -235,10 +254,11 @@ class Estimator:
             self.t_idx = np.zeros(len(self.pm.t_pidx), dtype=np.int64)
             self.d_idx = np.zeros(len(self.pm.d_pidx), dtype=np.int64)
             self._h_held = np.empty(nh)
+        *_, oyl, ost, _ = state_layout(nx, nq, nu, len(self.pm.schedule_channels), ny)
         self.state[:] = np.nan
         self.state[nx:nx + nq] = 0.0 if q0 is None else np.asarray(q0, dtype=np.float64)
         self._h_held[:] = self.db.tuner["h_ref"] + self.db.tuner["V_pinv"] @ self.state[nx:nx + nq]
-        self.state[-1] = 0.0
+        self.state[oyl + ny:ost + 1] = 0.0     # the stuck detector's counts, not started
         self.t_idx[:] = 0
         self.d_idx[:] = 0
         self._b_idx[:] = 0
@@ -354,16 +374,16 @@ class Estimator:
         big = np.finfo(np.float64).max
         return np.ascontiguousarray(np.clip(np.array(lim, dtype=np.float64).T, -big, big))
 
-    def _misfit_gate(self) -> np.ndarray:
-        """(ny,) relative misfit gate of every sensor: MISFIT_SIGMAS sensor standard deviations
-        relative to the value (the database's R over its trims, medians over the grid)."""
+    def _sensor_sd(self) -> np.ndarray:
+        """(ny,) every sensor's noise standard deviation relative to its value (the database's R
+        over its trims, medians over the grid; inf where that is not a positive number)."""
         db = self.db
         ny = db.n("y")
         R = db.kalman["R"].reshape(-1, ny, ny)
         sd = np.sqrt(np.median(R[:, np.arange(ny), np.arange(ny)], axis=0))
         level = np.median(np.abs(db.trim["y"].reshape(-1, ny)), axis=0)
         with np.errstate(divide="ignore", invalid="ignore"):
-            g = MISFIT_SIGMAS * sd / level
+            g = sd / level
         return np.where(np.isfinite(g) & (g > 0), g, np.inf)
 
     def _count_channels(self, chan_count) -> None:
@@ -478,7 +498,8 @@ class Estimator:
         dict
             ``database`` (absolute path, or ``"<memory>"``), ``database_digest`` (sha256 hex),
             ``mode`` (the estimator mode, ``+bias`` with bias tables, ``+map:<digest>`` with a
-            channel map), ``pwl_version``, ``created`` (ISO 8601 UTC, seconds).
+            channel map, ``+hold:3.5`` etc. for a health hold, misfit gate or stuck time not
+            the default), ``pwl_version``, ``created`` (ISO 8601 UTC, seconds).
         """
         import datetime
 
@@ -486,6 +507,7 @@ class Estimator:
         mode = {"untuned": "steady+untuned"}.get(self.mode, self.mode)   # as recorded before modes
         if self.bias:
             mode += "+bias"
+        mode += "".join(f"+{k}:{v:g}" for k, (v, d) in self._checks.items() if v != d)
         if self.channel_map is not None:   # another map, another reading of the same log
             from .h5io import file_digest
             cm = self.channel_map.path

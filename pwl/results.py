@@ -21,7 +21,7 @@ from .formats import RESULTS, check, stamp
 from .h5io import atomic_h5, attr_str, check_seal, read_strings, write_strings
 from .logs import Log
 from .runtime import (FLAG_DYN_OUTSIDE, FLAG_HEALTH, FLAG_HEALTH_HELD, FLAG_HELD_INPUT, FLAG_IMPLAUSIBLE,
-                      FLAG_MISFIT, FLAG_NO_UPDATE, FLAG_NOT_STARTED, FLAG_PARTIAL, FLAG_TRIM_OUTSIDE)
+                      FLAG_MISFIT, FLAG_NO_UPDATE, FLAG_NOT_STARTED, FLAG_PARTIAL, FLAG_STUCK, FLAG_TRIM_OUTSIDE)
 from .snapshots import Snapshots
 
 FORMAT = RESULTS.name
@@ -31,7 +31,8 @@ FORMAT_VERSION = RESULTS.version
 FLAG_COUNTS = {"no_update": FLAG_NO_UPDATE, "partial": FLAG_PARTIAL, "held_input": FLAG_HELD_INPUT,
                "trim_outside": FLAG_TRIM_OUTSIDE, "dyn_outside": FLAG_DYN_OUTSIDE,
                "not_started": FLAG_NOT_STARTED, "implausible": FLAG_IMPLAUSIBLE,
-               "misfit": FLAG_MISFIT, "health_implausible": FLAG_HEALTH, "health_held": FLAG_HEALTH_HELD}
+               "misfit": FLAG_MISFIT, "health_implausible": FLAG_HEALTH, "health_held": FLAG_HEALTH_HELD,
+               "stuck": FLAG_STUCK}
 #: every key of :meth:`Result.counts`, in order
 COUNT_KEYS = ("samples", *FLAG_COUNTS, "updated")
 

@@ -43,8 +43,10 @@ FLAG_IMPLAUSIBLE = 32     # a channel was outside its plausible range: treated a
                           # input, or no update)
 FLAG_MISFIT = 64          # a sensed output differed from its prediction by more than the misfit
                           # gate (MISFIT_SIGMAS sensor standard deviations): the model does not
-                          # explain the sample (unit mistake, failed sensor, wrong database); the
-                          # update still happens, the flag only reports it
+                          # explain the sample (stuck or failed sensor, spike, unit mistake). While
+                          # the misfitting sensors are fewer than half the present ones they are
+                          # left out of the update like missing ones (FLAG_PARTIAL path); when
+                          # most misfit, the model as a whole is off and all are used
 MISFIT_SIGMAS = 12.0
 FLAG_HEALTH = 128         # a health estimate left the plant's plausible health range (e.g. an
                           # efficiency 10 % better than new): the estimates cannot be trusted
@@ -56,6 +58,12 @@ FLAG_HEALTH_HELD = 512    # the missing sensor is one the health estimates depen
                           # times): h_hat holds its last value from before (the tuners and the other
                           # estimates go on, and the health estimates resume when it is back)
 HEALTH_HOLD_RATIO = 3.0
+FLAG_STUCK = 1024         # a sensor's value has not changed for STUCK_AFTER seconds and its
+                          # prediction moved more than STUCK_SIGMAS sensor standard deviations
+                          # meanwhile: a frozen sensor, left out of the update like a missing one
+                          # from then until its value changes
+STUCK_SIGMAS = 4.0
+STUCK_AFTER = 2.0
 
 
 
@@ -109,7 +117,8 @@ class Model(NamedTuple):
     V_pinv: np.ndarray     # (nh, nq)
     z_gains: np.ndarray    # zone gains, flat column-major (na x ny) per zone, or empty
     z_labels: np.ndarray   # int64 zone of every dynamics node, or empty
-    gate: np.ndarray       # (ny,) misfit gate, fraction of the prediction
+    gate: np.ndarray       # (2, ny) misfit gate and stuck gate, fractions of the prediction
+    stuck_n: int           # samples a sensor's value must repeat before the stuck gate applies
     ko_tab: np.ndarray     # (dyn nodes * ny, ny * na) sensor-out gains, or (1, 0)
     ko_avail: np.ndarray   # int64 (dyn nodes * ny,) 0 none, 1 gain, 2 gain and health held
     sub_tab: np.ndarray    # (dyn nodes, na*na + ny*ny) steady a-priori P and R, row-major: the
@@ -209,6 +218,7 @@ class Work(NamedTuple):
     kw: np.ndarray
     pr: np.ndarray       # interpolated sub_tab row: steady P and R
     Ps: np.ndarray       # its P (na, na), a view of pr
+    use: np.ndarray      # bool (ny,) the sensors this step's update uses
 
 
 @njit(cache=True, nogil=True)
@@ -231,13 +241,16 @@ def block_layout(nx, nu, ny, nz, nq):
 
 
 @njit(cache=True, nogil=True)
-def state_layout(nx, nq, nu, ns):
+def state_layout(nx, nq, nu, ns, ny):
     """Offsets in the filter state vector [x_abs (nx), q (nq), u_last (nu), s_last (ns),
-    theta_last, delta_last, started] and its size: (ox, oq, ou, osl, oth, ode, ost, size)."""
+    theta_last, delta_last, the stuck detector's sensor record (5 x ny, :func:`_stuck`), started]
+    and its size: (ox, oq, ou, osl, oth, ode, oyl, ost, size)."""
     ou = nx + nq
     osl = ou + nu
     oth = osl + ns
-    return 0, nx, ou, osl, oth, oth + 1, oth + 2, oth + 3
+    oyl = oth + 2
+    ost = oyl + 5 * ny
+    return 0, nx, ou, osl, oth, oth + 1, oyl, ost, ost + 1
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -393,10 +406,39 @@ def _online_propagate(model, filt, w, first, m, oA, oQ, nx, na):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _predict_measurements(io, model, bias, out, w, k, oC, oD, ny, ty, cy):
+def _stuck(model, state, o, ny, i, yk, s):
+    """Whether sensor i's value yk (present; prediction s, physical) is stuck: the same value
+    for model.stuck_n samples or more and, since it froze, either the prediction moved more than
+    the stuck gate or the sensor had changed value on most samples before over at least as long
+    (a noisy signal that stopped); then stuck until the value changes. Sensor record in
+    state[o:]: rows of ny [last value, repeats (inf once stuck), prediction when it came, value
+    changes, samples], reset to [NaN, 0, 0, 0, 0]."""
+    state[o + 4 * ny + i] += 1.0
+    if yk != state[o + i]:
+        state[o + i] = yk
+        state[o + ny + i] = 0.0
+        state[o + 2 * ny + i] = s
+        state[o + 3 * ny + i] += 1.0
+        return False
+    state[o + ny + i] += 1.0
+    rep = state[o + ny + i]
+    if rep < model.stuck_n:
+        return False
+    before = state[o + 4 * ny + i] - rep
+    if (rep == np.inf or abs(s - state[o + 2 * ny + i]) > model.gate[1, i] * abs(s)
+            or (before >= model.stuck_n and state[o + 3 * ny + i] > 0.5 * before)):
+        state[o + ny + i] = np.inf
+        return True
+    return False
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _predict_measurements(io, model, bias, state, out, w, k, oC, oD, ny, ty, cy, oyl):
     """y_hat = y_trim + C_a xm + D du (+ the bias tables), residuals (corrected units into w.res,
-    physical into the outputs; 0 and NaN for a missing sensor) and the misfit gate. Returns
-    (flags, number of missing sensors, the last missing one)."""
+    physical into the outputs; NaN for a missing sensor), the stuck detector and the misfit gate:
+    w.use[i] is False for a missing or stuck sensor and, while they are fewer than half the
+    present ones, for a misfitting one (its residual is still reported). Returns (flags, number
+    of sensors left out, the last one left out)."""
     flags = 0
     for i in range(ny):
         w.yh[i] = w.tw[ty + i]
@@ -405,24 +447,39 @@ def _predict_measurements(io, model, bias, out, w, k, oC, oD, ny, ty, cy):
     for c in range(bias.vals.shape[0]):
         w.yh[bias.chan[c]] += w.bias[c]
     n_miss = 0
-    miss = 0
+    n_mis = 0
     for i in range(ny):
-        s = w.yh[i]
-        fy = w.fac[model.cls[cy + i]]
+        s = w.yh[i] * w.fac[model.cls[cy + i]]
         yk = io.Y[k, i]
-        if not np.isfinite(yk):          # NaN or +-Inf: no update from this sensor
+        w.use[i] = np.isfinite(yk)      # NaN or +-Inf: no update from this sensor
+        out.y_hat[k, i] = s
+        if not w.use[i]:
             n_miss += 1
-            miss = i
             w.res[i] = 0.0
             out.residual[k, i] = np.nan
-        else:
-            w.res[i] = yk / fy - s
-            r = yk - s * fy
-            out.residual[k, i] = r
-            if abs(r) > model.gate[i] * abs(s * fy):
-                flags |= FLAG_MISFIT
-        out.y_hat[k, i] = s * fy
-    return flags, n_miss, miss
+            continue
+        w.res[i] = yk / w.fac[model.cls[cy + i]] - w.yh[i]
+        r = yk - s
+        out.residual[k, i] = r
+        if _stuck(model, state, oyl, ny, i, yk, s):
+            flags |= FLAG_STUCK
+            w.use[i] = False
+            w.res[i] = 0.0
+            n_miss += 1
+            continue
+        if abs(r) > model.gate[0, i] * abs(s):
+            n_mis += 1
+    if n_mis > 0:
+        flags |= FLAG_MISFIT
+    exclude = 2 * n_mis < ny - n_miss
+    miss = 0
+    for i in range(ny):
+        if w.use[i] and exclude and abs(out.residual[k, i]) > model.gate[0, i] * abs(out.y_hat[k, i]):
+            w.use[i] = False
+            w.res[i] = 0.0
+        if not w.use[i]:
+            miss = i
+    return flags, n_miss + (n_mis if exclude else 0), miss
 
 
 # how a step's update gain is made (:func:`_gain_choice`)
@@ -459,18 +516,18 @@ def _gain_choice(model, w, m, n_miss, miss, ny):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _subset_gain(io, w, P, R, oR, k, oC, oK, ny, na):
-    """The Kalman gain of the present sensors of sample k from the covariance P (na, na) and the
+def _subset_gain(w, P, R, oR, oC, oK, ny, na):
+    """The Kalman gain of the sensors in use (w.use) from the covariance P (na, na) and the
     row-major R stored at R[oR:], into the dynamics block's K (columns of missing sensors zero),
     and P <- P(k|k). Returns False when C P C^T + R is not positive definite (no update)."""
     mo = 0
     for i in range(ny):
-        if np.isfinite(io.Y[k, i]):
+        if w.use[i]:
             for j in range(na):
                 w.Ca[mo, j] = w.dw[oC + j * ny + i]
             mi = 0
             for j in range(ny):
-                if np.isfinite(io.Y[k, j]):
+                if w.use[j]:
                     w.Ra[mo, mi] = R[oR + i * ny + j]
                     mi += 1
             mo += 1
@@ -479,7 +536,7 @@ def _subset_gain(io, w, P, R, oR, k, oC, oK, ny, na):
         return False
     mi = 0
     for j in range(ny):
-        present = np.isfinite(io.Y[k, j])
+        present = w.use[j]
         for i in range(na):
             w.dw[oK + j * na + i] = w.Kw[i, mi] if present else 0.0
         if present:
@@ -557,7 +614,7 @@ def _steps(io, model, grids, filt, bias, out, work):
     na = nx + nq
     ns = io.S.shape[1]
     oA, oB, oC, oD, oF, oG, oK, oQ, oR, _, _ = block_layout(nx, nu, ny, nz, nq)
-    ox, oq, ou, osl, oth, ode, ost, _ = state_layout(nx, nq, nu, ns)
+    ox, oq, ou, osl, oth, ode, oyl, ost, _ = state_layout(nx, nq, nu, ns, ny)
     tu, ty, tz = nx, nx + nu, nx + nu + ny                    # trims: x u y z
     cy, cz, cs = nx + nu, nx + nu + ny, nx + nu + ny + nz      # channel classes: x u y z s
     nb = bias.vals.shape[0]
@@ -567,7 +624,7 @@ def _steps(io, model, grids, filt, bias, out, work):
     for k in range(io.U.shape[0]):
         flags = out.flags[k] | _hold_inputs(io, k, state, ou, osl, oth)   # + FLAG_IMPLAUSIBLE of screen()
         ok = True
-        for j in range(ou, ost):
+        for j in range(ou, oyl):
             ok &= state[j] == state[j]
         if not ok:  # nothing valid yet to predict from
             out.flags[k] = flags | FLAG_NOT_STARTED
@@ -589,7 +646,7 @@ def _steps(io, model, grids, filt, bias, out, work):
         if model.online:
             _online_propagate(model, filt, w, first, m, oA, oQ, nx, na)
         _time_update(model, state, w, oA, oB, nx, nu, nq, ou, tu)
-        f, n_miss, miss = _predict_measurements(io, model, bias, out, w, k, oC, oD, ny, ty, cy)
+        f, n_miss, miss = _predict_measurements(io, model, bias, state, out, w, k, oC, oD, ny, ty, cy, oyl)
         part, how = _gain_choice(model, w, m, n_miss, miss, ny)
         flags |= f | part
         if nb > 0:  # the bias tables learn from complete updates only
@@ -600,12 +657,12 @@ def _steps(io, model, grids, filt, bias, out, work):
                                  w.res[bias.chan[c]], bias.law, bias.ratio, w.b_frac)
         update = how != GAIN_NONE
         if model.online and update:  # the gain from P replaces the interpolated one
-            update = _subset_gain(io, w, w.P, w.dw, oR, k, oC, oK, ny, na)
+            update = _subset_gain(w, w.P, w.dw, oR, oC, oK, ny, na)
         elif how == GAIN_OUT:        # the stored gain without the missing sensor
             _sensor_out_gain(model, w, m, miss, oK, ny, na)
         elif how == GAIN_SUBSET:     # the present sensors' gain from the steady P and R
             interp_rows(model.sub_tab, w.d_wts, w.d_rows, m, w.pr)
-            update = _subset_gain(io, w, w.Ps, w.pr, na * na, k, oC, oK, ny, na)
+            update = _subset_gain(w, w.Ps, w.pr, na * na, oC, oK, ny, na)
         if not update:
             flags = (flags & ~(FLAG_PARTIAL | FLAG_HEALTH_HELD)) | FLAG_NO_UPDATE
         _measurement_update(model, grids, filt, w, update, oK, na, ny)
@@ -650,6 +707,11 @@ def filter_loop(io, model, grids, filt, bias, out):
     :func:`report`); else (two or more missing, no sensor-out gains, zone gains) no update
     (FLAG_NO_UPDATE).
 
+    Sensors that lie (:func:`_predict_measurements`): a stuck sensor (:func:`_stuck`,
+    FLAG_STUCK) and, while they are fewer than half the present ones, sensors whose residual
+    exceeds model.gate[0] of the prediction (FLAG_MISFIT) are left out of the update as if they
+    were missing; their residuals are still reported.
+
     Zone gains (model.z_gains non-empty; :mod:`linearize.zones` database zones): the gain is
     picked, not interpolated: the zone label of the dynamics node nearest to the operating point
     (per axis the closer breakpoint) selects the centroid gain (column-major, na x ny); the
@@ -685,7 +747,7 @@ def workspace(ns, model, grids, filt, bias):
                 np.empty((ro, no)), np.empty((mo, ng)), np.empty((no, no)), np.empty((mo, mo)),
                 np.empty((ng, mo)), np.empty((mo, mo)), np.empty((mo, mo)), np.empty((ng, mo)),
                 np.empty((ro, no)), np.empty(1 << nd, dtype=np.int64), np.empty(model.ko_tab.shape[1]),
-                pr, pr[:ns_ * ns_].reshape((ns_, ns_)))
+                pr, pr[:ns_ * ns_].reshape((ns_, ns_)), np.empty(ny, dtype=np.bool_))
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -910,11 +972,11 @@ class PackedModel:
     def state_size(self) -> int:
         """Length of the filter state vector (:func:`state_layout`)."""
         nx, nu, ny, nz, nq, nh = (int(d) for d in self.dims)
-        return int(state_layout(nx, nq, nu, len(self.schedule_channels))[-1])
+        return int(state_layout(nx, nq, nu, len(self.schedule_channels), ny)[-1])
 
-    def record(self, V_pinv: np.ndarray, gate: np.ndarray) -> Model:
-        """The kernel's :class:`Model` record: these tables, with V_pinv (nh, nq) and the misfit
-        gate (ny,)."""
+    def record(self, V_pinv: np.ndarray, gate: np.ndarray, stuck_n: int) -> Model:
+        """The kernel's :class:`Model` record: these tables, with V_pinv (nh, nq), the misfit and
+        stuck gates (2, ny) and the stuck detector's repeat count (samples)."""
         nx, nu, ny, nz, nq, nh = (int(d) for d in self.dims)
         lay = block_layout(nx, nu, ny, nz, nq)
         width = lay[-1] if self.online else lay[-2] - (nx + nq) * ny * (self.z_gains.shape[0] > 0)
@@ -924,7 +986,8 @@ class PackedModel:
         return Model(self.trim_tab, self.dyn_tab, self.dims, self.ex, self.cls, self.s_scale, self.s_corr,
                      self.s_state,
                      bool(self.online), self.p_tab, np.ascontiguousarray(V_pinv), self.z_gains,
-                     self.z_labels, np.ascontiguousarray(gate, dtype=np.float64), self.ko_tab, self.ko_avail,
+                     self.z_labels, np.ascontiguousarray(gate, dtype=np.float64), int(stuck_n),
+                     self.ko_tab, self.ko_avail,
                      self.sub_tab)
 
     def grids(self, db: GainDatabase) -> Grids:

@@ -33,10 +33,18 @@ class ReferenceFilter:
     ``health_hold``: steady gains, one sensor out: h_hat repeats its last value where a node of
     non-zero weight has a health standard-deviation ratio above it without that sensor. Steady
     gains and sensors missing without a stored gain for the set (two or more, or none stored):
-    the present sensors' gain from the interpolated steady-state P and R, h_hat held."""
+    the present sensors' gain from the interpolated steady-state P and R, h_hat held.
+
+    Sensor checks (each sensor's noise std ``sd`` relative to its value: the median over the
+    grid of sqrt(R_ii) over the median |y_trim|): a value repeated ``stuck_after`` seconds (in
+    samples of db.dt) while the prediction moved more than ``stuck_sigmas`` sd since it froze, or
+    after the sensor had changed value on more than half its samples over at least as long, is
+    left out (stuck) until the value changes; then the sensors whose residual exceeds ``misfit_sigmas`` sd of the
+    prediction are left out too, unless they are half the remaining ones or more."""
 
     def __init__(self, db: GainDatabase, bias=None, online: bool = False, zones=None,
-                 health_hold: float = 3.0):
+                 health_hold: float = 3.0, misfit_sigmas: float = 12.0, stuck_sigmas: float = 4.0,
+                 stuck_after: float = 2.0):
         from scipy.interpolate import RegularGridInterpolator
 
         self.db = db
@@ -44,6 +52,12 @@ class ReferenceFilter:
         self.online = online
         self.zones = zones
         self.health_hold = health_hold
+        ny = db.n("y")
+        R = db.kalman["R"].reshape(-1, ny, ny)
+        sd = np.sqrt(np.median(np.diagonal(R, axis1=1, axis2=2), axis=0)) / np.median(
+            np.abs(db.trim["y"].reshape(-1, ny)), axis=0)
+        self.misfit_gate, self.stuck_gate = misfit_sigmas * sd, stuck_sigmas * sd
+        self.stuck_n = np.ceil(stuck_after / db.dt)
         ext = db.policy == "extrapolate"
         self.ext = ext
 
@@ -98,6 +112,9 @@ class ReferenceFilter:
         xa = None
         q = np.zeros(nq)
         h_held = db.tuner["h_ref"].copy()
+        ny = db.n("y")
+        y_last, repeats, froze_at = np.full(ny, np.nan), np.zeros(ny), np.zeros(ny)
+        changes, seen = np.zeros(ny), np.zeros(ny)
         for k in range(U.shape[0]):
             th, de = TH[k], DE[k]
             p = np.empty(len(db.schedule))
@@ -133,7 +150,23 @@ class ReferenceFilter:
                 yh[i] += w @ vals.reshape(-1)
                 learn.append((i, w, vals, ratio, inside))
             r = Y[k] / fy - yh
-            have = np.isfinite(r)
+            pred, res = yh * fy, Y[k] - yh * fy
+            present = np.isfinite(r)
+            seen += present
+            same = present & (Y[k] == y_last)
+            repeats = np.where(same, repeats + 1, 0.0)
+            froze_at = np.where(same, froze_at, pred)
+            changes += present & ~same
+            y_last = np.where(present, Y[k], y_last)
+            before = seen - repeats
+            stuck = same & (repeats >= self.stuck_n) & (
+                (repeats == np.inf) | (np.abs(pred - froze_at) > self.stuck_gate * np.abs(pred))
+                | ((before >= self.stuck_n) & (changes > 0.5 * before)))
+            repeats[stuck] = np.inf       # stuck until the value changes
+            have = present & ~stuck
+            misfit = have & (np.abs(res) > self.misfit_gate * np.abs(pred))
+            if 2 * misfit.sum() < have.sum():
+                have &= ~misfit
             r = np.where(have, r, 0.0)
             for i, w, vals, ratio, inside in learn:
                 if inside and have.all():
@@ -181,7 +214,7 @@ class ReferenceFilter:
                 h_held = db.tuner["h_ref"] + db.tuner["V_pinv"] @ q
             out["h_hat"].append(h_held)
             out["y_hat"].append(yh * fy)
-            out["residual"].append(np.where(have, Y[k] - yh * fy, np.nan))
+            out["residual"].append(np.where(present, res, np.nan))
             out["z_hat"].append(z * self.factor("z", th, de))
             if self.online:
                 Vp = db.tuner["V_pinv"]

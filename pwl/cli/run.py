@@ -7,6 +7,7 @@ import time
 from ..results import COMPRESSIONS, DEFAULT_COMPRESSION
 from ..errors import UsageError
 from ..estimator import MODES
+from ..runtime import HEALTH_HOLD_RATIO, MISFIT_SIGMAS, STUCK_AFTER
 
 HELP = ("run the piecewise-linear Kalman filter over flight logs (HDF5, CSV, Parquet); exit status 1 "
         "when a log failed or had too few measurement updates")
@@ -53,6 +54,16 @@ def add_arguments(p):
                         "filter, covariance propagated and gain solved every step (about 7x slower; for "
                         "comparison); zones: the gain of the database's k-means zones (/zones, from pwl "
                         "zones --database DB --out ZONED.h5)")
+    p.add_argument("--misfit-sigmas", type=float, default=MISFIT_SIGMAS, metavar="N",
+                   help="leave a sensor out of a step's update when its residual exceeds N sensor "
+                        "standard deviations (while fewer than half misfit; default %(default)g; inf: never)")
+    p.add_argument("--stuck-after", type=float, default=STUCK_AFTER, metavar="SECONDS",
+                   help="a sensor whose value stays exactly the same this long (and whose prediction "
+                        "moved, or which used to change every sample) is stuck and left out "
+                        "(default %(default)g; inf: never)")
+    p.add_argument("--health-hold", type=float, default=HEALTH_HOLD_RATIO, metavar="RATIO",
+                   help="hold the health estimates while a sensor is out without which their "
+                        "standard deviation grows more than RATIO times (default %(default)g; inf: never)")
     p.add_argument("--online", action="store_true", help="the same as --mode online")
     p.add_argument("--zones", action="store_true", help="the same as --mode zones")
 
@@ -120,7 +131,9 @@ def run(args) -> int:
 
     db = GainDatabase.open(args.database)  # fail early, with the named error, on a bad database
     mode = run_mode(args)
-    est = Estimator(db, mode, channel_map=args.channel_map)   # and on options it cannot serve
+    checks = {"misfit_sigmas": args.misfit_sigmas, "stuck_after": args.stuck_after,
+              "health_hold": args.health_hold}
+    est = Estimator(db, mode, channel_map=args.channel_map, **checks)   # and on options it cannot serve
     select_outputs(est.names, args.outputs, where="--outputs")
     check_every(args.every)
     if args.dask and args.workers:
@@ -156,7 +169,7 @@ def run(args) -> int:
                            names=names, resample=args.resample,
                        channel_map=args.channel_map, executor=executor,
                            outputs=args.outputs, every=args.every, compression=args.compression,
-                           force=args.force)
+                           force=args.force, checks=checks)
     failed = [r for r in results if r.status == FAILED]
     skipped = [r for r in results if r.status == SKIPPED]
     n = sum(r.counts["samples"] for r in results if r.counts and r.status != SKIPPED)
@@ -224,7 +237,7 @@ def _executor(args, n_logs: int):
 #: flag counts in the order they are printed, with their labels
 FLAG_LABELS = (("updated", "updated"), ("no_update", "without update"), ("partial", "partial update"),
                ("held_input", "input held"), ("implausible", "implausible"), ("misfit", "misfit"),
-               ("health_implausible", "implausible health"), ("health_held", "health held"),
+               ("health_implausible", "implausible health"), ("health_held", "health held"), ("stuck", "stuck sensor"),
                ("trim_outside", "outside the trim grid"), ("dyn_outside", "outside the dynamics grid"),
                ("not_started", "before the first valid sample"))
 

@@ -58,7 +58,7 @@ class Job:
     ``database``: absolute path; ``digest``: the database's digest when the run started (a
     worker refuses a database that changed since); ``outputs``: selected output names (None:
     all); ``host``: the machine that submitted the run (workers elsewhere use the user numba
-    cache)."""
+    cache); ``checks``: the estimator's sensor-check options, sorted (name, value) pairs."""
 
     database: str
     digest: str
@@ -70,9 +70,10 @@ class Job:
     compression: str | None = DEFAULT_COMPRESSION
     force: bool = False
     host: str = ""
+    checks: tuple = ()
 
     def estimator_key(self) -> tuple:
-        return (self.database, self.digest, self.mode, self.resample, self.channel_map)
+        return (self.database, self.digest, self.mode, self.resample, self.channel_map, self.checks)
 
 
 # ---- worker side ---------------------------------------------------------------------------------
@@ -142,7 +143,8 @@ def _estimator(job: Job) -> Estimator:
                     raise DatabaseError(f"{job.database}: changed since this run started (sha256 "
                                         f"{db.digest[:12]}... instead of {job.digest[:12]}...); run again")
                 _DATABASES[key[:2]] = db
-        cache[key] = Estimator(db, job.mode, resample=job.resample, channel_map=job.channel_map)
+        cache[key] = Estimator(db, job.mode, resample=job.resample, channel_map=job.channel_map,
+                               **dict(job.checks))
     return cache[key]
 
 
@@ -251,7 +253,8 @@ def remove_stale_temporaries(outs) -> int:
 def run_many(db_path, log_paths, outdir, workers: int | None = None, csv: bool = False,
              progress=None, mode: str = "steady", names=None,
              resample: bool = False, *, channel_map=None, executor=None, outputs=None, every: int = 1,
-             compression: str | None = DEFAULT_COMPRESSION, force: bool = False) -> list[LogRun]:
+             compression: str | None = DEFAULT_COMPRESSION, force: bool = False,
+             checks: dict | None = None) -> list[LogRun]:
     """Estimate every log into ``outdir``: one results file per log (see :func:`run_log`).
 
     A log whose results file already holds what this call would write (same database digest,
@@ -290,6 +293,9 @@ def run_many(db_path, log_paths, outdir, workers: int | None = None, csv: bool =
         What the results files hold (see :meth:`pwl.Estimator.run_file`).
     force : bool
         Recompute logs whose results are already there.
+    checks : dict, optional
+        Sensor-check options of the estimator (``health_hold``, ``misfit_sigmas``,
+        ``stuck_after``; :class:`pwl.Estimator`); default: its defaults.
 
     Returns
     -------
@@ -307,12 +313,13 @@ def run_many(db_path, log_paths, outdir, workers: int | None = None, csv: bool =
     logs = [os.fspath(p) for p in log_paths]
     outs = [output_path(p, outdir, csv, n) for p, n in zip(logs, result_names(logs, names))]
     db = db_path if isinstance(db_path, GainDatabase) else GainDatabase.open(db_path)
-    est = Estimator(db, mode, resample=resample, channel_map=channel_map)  # named errors first
+    checks = tuple(sorted((checks or {}).items()))
+    est = Estimator(db, mode, resample=resample, channel_map=channel_map, **dict(checks))  # named errors first
     keep = select_outputs(est.names, outputs)
     compression_filters(compression)
     job = Job(os.path.abspath(db.path), db.digest, mode, resample,
               None if channel_map is None else os.path.abspath(os.fspath(channel_map)), None if outputs is None else tuple(keep), check_every(every), compression, force,
-              socket.gethostname())
+              socket.gethostname(), checks)
     _DATABASES.setdefault((job.database, job.digest), db)   # this process and forked workers
     os.makedirs(outdir, exist_ok=True)
     remove_stale_temporaries(outs)

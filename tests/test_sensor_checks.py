@@ -1,0 +1,116 @@
+"""Sensors that lie (the unclean world): a frozen sensor, spikes, a whole sample the model cannot
+explain. The runtime leaves a stuck or misfitting sensor out of the update like a missing one;
+checked against the numpy reference filter (its own gates from the database), against the
+samples where the faults were put by hand, and against the simulation's truth on the demo
+flight."""
+import numpy as np
+import pytest
+
+from linearize.build import with_sensor_out_gains
+from pwl.bench.reference import ReferenceFilter
+from pwl.estimator import Estimator
+from pwl.runtime import FLAG_MISFIT, FLAG_NOT_STARTED, FLAG_PARTIAL, FLAG_STUCK
+from test_online import assert_equals_reference
+from test_runtime import inputs, names_db
+
+
+def synthetic():
+    """The synthetic database (5 sensors) and inputs whose sensors read what the model predicts
+    open-loop (a run without measurements), plus 0.01 % noise."""
+    db = with_sensor_out_gains(names_db(ny=5), log=lambda *a: None)
+    U, Y, S, TH, DE = inputs(db, n=260)
+    y_hat = Estimator(db).run_arrays(U, np.full_like(Y, np.nan), S, TH, DE).outputs["y_hat"]
+    Y = y_hat * (1 + 1e-4 * np.random.default_rng(5).normal(size=Y.shape))
+    return db, U, Y, S, TH, DE
+
+
+def test_stuck_and_misfitting_sensors_are_left_out_as_the_reference_filter_does():
+    db, U, Y, S, TH, DE = synthetic()
+    n_stuck = 10
+    stuck_after = n_stuck * db.dt
+    Y[50:150, 0] = Y[50, 0]          # sensor 0 frozen at sample 50's value
+    Y[170, 2] *= 3.0                 # a spike on sensor 2
+    Y[200:205] *= 5.0                # every sensor off: the model, not a sensor, is wrong
+    est = Estimator(db, stuck_after=stuck_after)
+    res = est.run_arrays(U, Y, S, TH, DE)
+    assert_equals_reference(res, ReferenceFilter(db, stuck_after=stuck_after).run(U, Y, S, TH, DE))
+    stuck = (res.flags & FLAG_STUCK) != 0
+    # it changed value on every sample before: stuck from its n-th repeat until it moves again
+    np.testing.assert_array_equal(np.flatnonzero(stuck), np.arange(50 + n_stuck, 150))
+    assert np.all(res.flags[60:150] & FLAG_PARTIAL)
+    assert np.isfinite(res.outputs["residual"][60:150, 0]).all()     # still reported
+    assert res.flags[170] & FLAG_MISFIT and res.flags[170] & FLAG_PARTIAL
+    assert np.all(res.flags[200:205] & FLAG_MISFIT)
+    assert not np.any(res.flags[200:205] & FLAG_PARTIAL)               # most misfit: all used
+    assert not np.any(res.flags[:50] & (FLAG_MISFIT | FLAG_STUCK | FLAG_PARTIAL))
+    # the checks off: every sensor is used
+    off = Estimator(db, misfit_sigmas=np.inf, stuck_after=np.inf).run_arrays(U, Y, S, TH, DE)
+    assert not np.any(off.flags & (FLAG_MISFIT | FLAG_STUCK | FLAG_PARTIAL))
+    ref = ReferenceFilter(db, misfit_sigmas=np.inf, stuck_after=np.inf).run(U, Y, S, TH, DE)
+    assert_equals_reference(off, ref)
+
+
+def test_the_stuck_detector_carries_across_chunks():
+    db, U, Y, S, TH, DE = synthetic()
+    Y[50:150, 0] = Y[50, 0]
+    est = Estimator(db, stuck_after=10 * db.dt)
+    whole = est.run_arrays(U, Y, S, TH, DE)
+    est.reset()
+    parts = [est.run_arrays(U[a:b], Y[a:b], S[a:b], TH[a:b], DE[a:b]) for a, b in ((0, 55), (55, 63), (63, 260))]
+    np.testing.assert_array_equal(np.concatenate([p.flags for p in parts]), whole.flags)
+    np.testing.assert_array_equal(np.concatenate([p.q_hat for p in parts]), whole.q_hat)
+
+
+def _demo():
+    from pwl.demo_data import demo_paths
+    from pwl.logs import read_log
+
+    db_path, logs = demo_paths()
+    return db_path, read_log([p for p in logs if "degraded" in p][0])
+
+
+def _with(log, **channels):
+    from pwl.logs import Log
+    return Log(log.time, dict(log.channels, **channels), log.units, attrs=log.attrs, path=log.path)
+
+
+def _fn_rms(r, log, rows):
+    e = (r.channel("z_hat", "Fn") - log.truth["Fn"]) / log.truth["Fn"]
+    return float(np.sqrt(np.mean(e[rows] ** 2)))
+
+
+@pytest.mark.parametrize("sensor", ["P50", "T30"])
+def test_a_sensor_frozen_mid_flight_is_left_out(sensor):
+    """The degraded demo flight with one sensor frozen at its half-way value (it had changed on
+    every sample): used anyway, P50 gave a 46 % Fn error; left out from 2 s after it froze, the
+    Fn error stays within 1.1x of the all-sensor run."""
+    db_path, log = _demo()
+    k0 = len(log) // 2
+    v = np.array(log.channels[sensor], dtype=np.float64)
+    v[k0:] = v[k0]
+    est = Estimator(db_path)
+    after = np.arange(len(log)) >= k0
+    full, frozen = est.run(log), est.run(_with(log, **{sensor: v}))
+    n = int(np.ceil(2.0 / est.db.dt))
+    assert np.all(frozen.flags[k0 + n:] & FLAG_STUCK) and not np.any(frozen.flags[:k0 + n] & FLAG_STUCK)
+    assert _fn_rms(frozen, log, after) <= 1.1 * _fn_rms(full, log, after)
+
+
+def test_sample_and_hold_logging_is_not_stuck_and_spikes_are_left_out():
+    """Sensors logged at 1 Hz and held between (each value repeated ~67 times) are not stuck: the
+    detector needs a signal that used to change and now does not. A 20 % spike on 1 % of the
+    P50 samples is left out (misfit): the Fn error equals the clean run's to 1 %."""
+    db_path, log = _demo()
+    est = Estimator(db_path)
+    dt = est.db.dt
+    hold = (np.arange(len(log)) // int(round(1.0 / dt))) * int(round(1.0 / dt))
+    held = est.run(_with(log, **{c: np.asarray(log.channels[c])[hold] for c in est.db.names["y"]}))
+    assert not np.any(held.flags & FLAG_STUCK)
+    rng = np.random.default_rng(2)
+    spike = rng.random(len(log)) < 0.01
+    p50 = np.where(spike, 1.2, 1.0) * log.channels["P50"]
+    spiked, clean = est.run(_with(log, P50=p50)), est.run(log)
+    started = (spiked.flags & FLAG_NOT_STARTED) == 0
+    assert spike[started].sum() > 400 and np.all(spiked.flags[spike & started] & FLAG_MISFIT)
+    rows = log.time >= log.time[0] + 120
+    assert abs(_fn_rms(spiked, log, rows) / _fn_rms(clean, log, rows) - 1) <= 0.01
