@@ -34,7 +34,17 @@ FLAG_COUNTS = {"no_update": FLAG_NO_UPDATE, "partial": FLAG_PARTIAL, "held_input
                "misfit": FLAG_MISFIT, "health_implausible": FLAG_HEALTH, "health_held": FLAG_HEALTH_HELD,
                "stuck": FLAG_STUCK}
 #: every key of :meth:`Result.counts`, in order
-COUNT_KEYS = ("samples", *FLAG_COUNTS, "updated")
+COUNT_KEYS = ("samples", *FLAG_COUNTS, "updated", "trusted")
+
+
+def trusted(flags: np.ndarray) -> np.ndarray:
+    """(n,) bool: the samples whose estimates nothing flags as suspect -- a measurement update,
+    the operating point inside the trim grid, health estimates in their plausible range, and no
+    misfit the update could not leave out (most sensors misfit: the model does not explain the
+    sample)."""
+    f = np.asarray(flags)
+    bad = (f & (FLAG_NO_UPDATE | FLAG_NOT_STARTED | FLAG_HEALTH | FLAG_TRIM_OUTSIDE)) != 0
+    return ~bad & ~(((f & FLAG_MISFIT) != 0) & ((f & FLAG_PARTIAL) == 0))
 
 #: HDF5 filters of the outputs and flags. gzip (deflate) is in every HDF5 library, so every tool
 #: reads it; lzf only in h5py (and tools built on it, such as h5netcdf). Off by default: on the
@@ -134,13 +144,15 @@ class Result:
         -------
         dict
             ``samples`` (n), one count per flag of :data:`FLAG_COUNTS` (``no_update``,
-            ``partial``, ``held_input``, ``trim_outside``, ...), and ``updated`` (the samples with
-            a measurement update); keys in :data:`COUNT_KEYS` order, int.
+            ``partial``, ``held_input``, ``trim_outside``, ...), ``updated`` (the samples with
+            a measurement update) and ``trusted`` (:func:`trusted`); keys in
+            :data:`COUNT_KEYS` order, int.
         """
         f = self.flags
         out = {"samples": int(f.size)}
         out.update({k: int(np.count_nonzero(f & bit)) for k, bit in FLAG_COUNTS.items()})
         out["updated"] = int(np.count_nonzero((f & (FLAG_NO_UPDATE | FLAG_NOT_STARTED)) == 0))
+        out["trusted"] = int(np.count_nonzero(trusted(f)))
         return out
 
     def to_dataframe(self):

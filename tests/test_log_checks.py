@@ -11,7 +11,7 @@ from pwl.estimator import Estimator
 from pwl.h5io import file_digest
 from pwl.logs import Log, LogError, write_log
 from pwl.runtime import FLAG_IMPLAUSIBLE
-from test_runtime import full_log, names_db
+from test_runtime import full_log, inputs, names_db
 
 
 def ranged_db(**kw):
@@ -106,11 +106,21 @@ def test_sample_interval_must_match_the_database():
     assert Estimator(db).run(near).counts()["samples"] == 400
 
 
+def explained_log(db):
+    """:func:`log_of` whose sensors (but y1, the schedule channel) read what the model predicts
+    open-loop (a run without measurements): a log the model explains."""
+    log = log_of(db)
+    U, Y, S, TH, DE = inputs(db, n=len(log))         # what full_log wrote
+    y_hat = Estimator(db).run_arrays(U, np.full_like(Y, np.nan), S, TH, DE).outputs["y_hat"]
+    log.channels.update({c: y_hat[:, j] for j, c in enumerate(db.names["y"]) if c != "y1"})
+    return log
+
+
 def test_run_prints_every_flag_count_and_fails_a_log_without_estimates(tmp_path, capsys):
     from pwl.cli import main
     db = ranged_db()
     db.save(tmp_path / "db.h5")
-    good = log_of(db)
+    good = explained_log(db)
     dead = log_of(db)
     for c in db.names["y"]:                         # every sensor dead: no measurement update at all
         dead.channels[c][:] = np.nan
@@ -162,3 +172,32 @@ def test_misfit_flags_where_the_model_cannot_explain_a_sensor():
     want = np.any(np.abs(res.outputs["residual"]) > gate * np.abs(res.outputs["y_hat"]), axis=1)
     np.testing.assert_array_equal((res.flags & FLAG_MISFIT) != 0, want)
     assert want.mean() > 0.5
+
+
+def test_trusted_samples_leave_out_what_the_flags_call_suspect():
+    from pwl.results import trusted
+    from pwl.runtime import (FLAG_HEALTH, FLAG_MISFIT, FLAG_NO_UPDATE, FLAG_PARTIAL, FLAG_STUCK,
+                             FLAG_TRIM_OUTSIDE)
+    flags = np.array([0, FLAG_PARTIAL, FLAG_MISFIT | FLAG_PARTIAL, FLAG_STUCK | FLAG_PARTIAL,   # trusted
+                      FLAG_MISFIT, FLAG_NO_UPDATE, FLAG_HEALTH, FLAG_TRIM_OUTSIDE | FLAG_PARTIAL])
+    np.testing.assert_array_equal(trusted(flags), [True] * 4 + [False] * 4)
+
+
+def test_a_unit_mistake_on_the_schedule_sensor_fails_the_run(tmp_path, capsys):
+    """Nf logged in rad/s instead of rpm, no unit declared: most samples still pass the range
+    check and get an update (92 %), but the operating point is off the grid and the model explains
+    none of it; before, pwl run exited 0 with a 42 % Fn error. Now no sample is trusted and the
+    run exits 1 naming what was flagged."""
+    from pwl.cli import main
+    from pwl.demo_data import demo_paths
+    from pwl.logs import read_log
+
+    db_path, logs = demo_paths()
+    log = read_log(logs[0])
+    write_log(tmp_path / "rads.h5", Log(log.time, dict(log.channels, Nf=log.channels["Nf"] * 2 * np.pi / 60),
+                                        {c: u for c, u in log.units.items() if c != "Nf"}, attrs=log.attrs))
+    code = main(["run", db_path, str(tmp_path / "rads.h5"), logs[0], "-o", str(tmp_path / "out"), "-j", "1"])
+    err = capsys.readouterr().err
+    assert code == 1 and err.count("TOO FEW") == 1
+    line = err[err.index("TOO FEW"):].splitlines()[0]
+    assert "samples trusted" in line and "misfit" in line and "outside the trim grid" in line and "Nf" in line

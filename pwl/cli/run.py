@@ -45,9 +45,10 @@ def add_arguments(p):
                    help="resample logs whose sample interval differs from the database's dt by more "
                         "than 1 %% (linear interpolation; default: such logs are refused)")
     p.add_argument("--min-updated", type=float, default=MIN_UPDATED, metavar="FRACTION",
-                   help="exit status 1 when a log has a measurement update at fewer than this "
-                        "fraction of its samples (default %(default)s): the estimates of such a log "
-                        "are mostly open-loop predictions")
+                   help="exit status 1 when a log has a measurement update, or trusted estimates, at "
+                        "fewer than this fraction of its samples (default %(default)s): such a log's "
+                        "estimates are mostly open-loop predictions, or outside the trim grid, or with "
+                        "implausible health, or the model explains none of its sensors")
     p.add_argument("--mode", choices=MODES, default=None,
                    help="how the update gain is made: steady (default) the database's steady-state "
                         "gains; untuned: the same with the tuners held at 0; online: the full Kalman "
@@ -188,7 +189,7 @@ def run(args) -> int:
                                       " (CSV: Parquet needs pandas and pyarrow)"))
     if failed or short:
         print(f"pwl run: {len(failed)} log(s) failed, {len(short)} with too few estimates "
-              f"(fewer than {args.min_updated:.0%} of samples updated); see above", file=sys.stderr)
+              f"(fewer than {args.min_updated:.0%} of samples updated or trusted); see above", file=sys.stderr)
         return EXIT_FINDINGS
     return 0
 
@@ -235,7 +236,7 @@ def _executor(args, n_logs: int):
 
 
 #: flag counts in the order they are printed, with their labels
-FLAG_LABELS = (("updated", "updated"), ("no_update", "without update"), ("partial", "partial update"),
+FLAG_LABELS = (("updated", "updated"), ("trusted", "trusted"), ("no_update", "without update"), ("partial", "partial update"),
                ("held_input", "input held"), ("implausible", "implausible"), ("misfit", "misfit"),
                ("health_implausible", "implausible health"), ("health_held", "health held"), ("stuck", "stuck sensor"),
                ("trim_outside", "outside the trim grid"), ("dyn_outside", "outside the dynamics grid"),
@@ -245,18 +246,28 @@ FLAG_LABELS = (("updated", "updated"), ("no_update", "without update"), ("partia
 def describe(counts: dict) -> str:
     """One line: the sample count and every flag count of a log's run."""
     n = max(counts["samples"], 1)
-    parts = [f"{counts[k]} {label}" + (f" ({counts[k] / n:.0%})" if k == "updated" else "")
+    parts = [f"{counts[k]} {label}" + (f" ({counts[k] / n:.0%})" if k in ("updated", "trusted") else "")
              for k, label in FLAG_LABELS if k in counts]
     return f"{counts['samples']} samples: " + ", ".join(parts)
 
 
 def too_few(counts: dict, min_updated: float) -> str:
-    """Why a log's estimates cannot be trusted (fewer than ``min_updated`` of its samples had a
-    measurement update), naming the channels that were missing or implausible; "" if fine."""
+    """Why a log's estimates cannot be trusted -- fewer than ``min_updated`` of its samples had a
+    measurement update, or were trusted (:func:`pwl.results.trusted`: inside the trim grid,
+    plausible health, a model that explains the sensors) -- naming the channels that were
+    missing or implausible and what else was flagged; "" if fine."""
     n = counts["samples"]
-    if n and counts.get("updated", n) >= min_updated * n:
+    updated = counts.get("updated", n)
+    good = counts.get("trusted", updated)      # results files written before "trusted"
+    if n and good >= min_updated * n:
         return ""
     missing = sorted(((v, c) for c, v in (counts.get("missing_channels") or {}).items() if v), reverse=True)
     chans = ", ".join(f"{c} {v / max(n, 1):.0%}" for v, c in missing[:4])
-    return (f"{counts.get('updated', 0)} of {n} samples had a measurement update"
-            + (f"; missing or implausible: {chans}" if chans else ""))
+    if updated < min_updated * n or not n:
+        why = f"{updated} of {n} samples had a measurement update"
+    else:
+        flagged = ", ".join(f"{label} {counts[k] / n:.0%}" for k, label in (
+            ("misfit", "misfit"), ("health_implausible", "implausible health"),
+            ("trim_outside", "outside the trim grid")) if counts.get(k))
+        why = f"{good} of {n} samples trusted ({flagged}: a unit mistake, a failed sensor or the wrong database?)"
+    return why + (f"; missing or implausible: {chans}" if chans else "")
