@@ -146,11 +146,27 @@ class Stream:
         self._chan_count[:] = 0
 
     def row(self, sample: dict) -> np.ndarray:
-        """The row of a sample given as channel name -> value (missing channels are NaN)."""
-        unknown = set(sample) - set(self.channels)
-        if unknown:
-            raise UsageError(f"stream: unknown channels {sorted(unknown)}; it reads {self.channels}")
-        return np.array([float(sample.get(c, np.nan)) for c in self.channels])
+        """The row of a sample given as channel name -> value (a number; None, NaN or a channel
+        left out: missing). Other keys (``time``, channels it does not read) are ignored, unless
+        a channel it reads is left out too: then the names are refused as a likely mismatch."""
+        row = np.empty(len(self.channels))
+        absent = []
+        for j, c in enumerate(self.channels):
+            v = sample.get(c)
+            if v is None:
+                row[j] = np.nan
+                absent += [] if c in sample else [c]
+                continue
+            try:
+                row[j] = float(v)
+            except (TypeError, ValueError):
+                raise UsageError(f"stream: channel {c}: {v!r} is not a number") from None
+        if absent:
+            unknown = sorted(set(sample) - set(self.channels) - {"time"})
+            if unknown:
+                raise UsageError(f"stream: channels {absent} are missing and {unknown} unknown (a naming "
+                                 f"mismatch? give a missing value as None or NaN); it reads {self.channels}")
+        return row
 
     def missing(self) -> dict:
         """Samples per channel that were missing (NaN, Inf or outside the plausible range)."""

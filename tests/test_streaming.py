@@ -5,6 +5,7 @@ import pytest
 
 from conftest import make_database
 from linearize.build import with_sensor_out_gains
+from pwl.errors import UsageError
 from pwl.estimator import EnvelopeError, Estimator
 from pwl.runtime import FLAG_DYN_OUTSIDE, FLAG_TRIM_OUTSIDE
 from pwl.streaming import Stream
@@ -89,5 +90,11 @@ def test_stream_rows_and_policy_errors():
         stream.step(rows[1])
     r = stream.row({stream.channels[0]: 1.5})
     assert r[0] == 1.5 and np.isnan(r[1:]).all()
-    with pytest.raises(Exception, match="unknown channels"):
+    with pytest.raises(UsageError, match=r"missing and \['nope'\] unknown \(a naming mismatch"):
         stream.row({"nope": 1.0})
+    full = {c: 2.0 for c in stream.channels}
+    np.testing.assert_array_equal(stream.row(dict(full, time=3.0, TRA=40.0)), 2.0)   # extras ignored
+    none = stream.row(dict(full, **{stream.channels[1]: None}))
+    assert np.isnan(none[1]) and (np.delete(none, 1) == 2.0).all()
+    with pytest.raises(UsageError, match=f"channel {stream.channels[2]}: 'abc' is not a number"):
+        stream.row(dict(full, **{stream.channels[2]: "abc"}))
