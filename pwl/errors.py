@@ -29,3 +29,8 @@ class PwlError(Exception):
 
 class UsageError(PwlError, ValueError):
     """Options or arguments that cannot be used together (the message says which and why)."""
+
+
+class PwlWarning(UserWarning):
+    """Input pwl used with a fallback the user should know about (the message names it), e.g.
+    text cells in a numeric log column read as missing values."""

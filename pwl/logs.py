@@ -27,7 +27,7 @@ from importlib.metadata import version
 import h5py
 import numpy as np
 
-from .errors import PwlError
+from .errors import PwlError, PwlWarning
 from .formats import FLIGHT_LOG, check, stamp
 from .h5io import SealError, atomic_h5, attr_str, check_seal
 from .units import UnitError, converter
@@ -387,26 +387,38 @@ def _vector(path, name, v):
     return a.reshape(-1)
 
 
-def _numeric(path, name, v) -> np.ndarray:
-    """Column ``name`` as a new float64 (n,) array: numbers and booleans as they are, missing
-    values (empty cells, None, NA) as NaN, text parsed as Python's ``float`` does (``1e400`` is
-    inf); a LogError names the first value that is not a number."""
+def _numeric(path, name, v, text_as_missing: bool = False) -> tuple[np.ndarray, int]:
+    """Column ``name`` as a new float64 (n,) array and how many of its values were text read as
+    missing: numbers and booleans as they are, missing values (empty cells, None, NA) as NaN,
+    text parsed as Python's ``float`` does (``1e400`` is inf). Other text (``ERR``, ``#N/A``,
+    ``-``): a LogError naming the first such value, or with ``text_as_missing`` NaN while fewer than
+    half the column's values are such text (a :class:`PwlWarning` names the column, the count
+    and the first)."""
     import pandas as pd
     s = v if isinstance(v, pd.Series) else pd.Series(v)
     if pd.api.types.is_numeric_dtype(s.dtype):
-        return s.to_numpy(dtype=np.float64, na_value=np.nan, copy=True)
+        return s.to_numpy(dtype=np.float64, na_value=np.nan, copy=True), 0
     if not (s.dtype == object or pd.api.types.is_string_dtype(s.dtype)):
         raise LogError(f"{path}: column {name!r} holds {s.dtype} values, not numbers")
     a = s.to_numpy(dtype=object, na_value=np.nan)
     try:
-        return a.astype(np.float64)
+        return a.astype(np.float64), 0
     except (TypeError, ValueError):
-        for i, x in enumerate(a):
-            try:
-                float(x)
-            except (TypeError, ValueError):
-                raise LogError(f"{path}: column {name!r}: non-numeric value {x!r} at sample {i}") from None
-        raise
+        pass
+    out = np.full(a.size, np.nan)
+    bad = []
+    for i, x in enumerate(a):
+        try:
+            out[i] = float(x)
+        except (TypeError, ValueError):
+            bad.append(i)
+    given = int(np.count_nonzero(~pd.isna(a)))
+    if not text_as_missing or 2 * len(bad) >= given:
+        raise LogError(f"{path}: column {name!r}: non-numeric value {a[bad[0]]!r} at sample {bad[0]}"
+                       + (f" ({len(bad)} of its {given} values are not numbers)" if text_as_missing else ""))
+    warnings.warn(PwlWarning(f"{path}: column {name!r}: {len(bad)} non-numeric value(s) read as missing "
+                             f"(the first {a[bad[0]]!r} at sample {bad[0]})"), stacklevel=3)
+    return out, len(bad)
 
 
 def _seconds(path, name, unit, v):
@@ -418,7 +430,7 @@ def _seconds(path, name, unit, v):
     s = v if isinstance(v, pd.Series) else pd.Series(v)
     if not (pd.api.types.is_datetime64_any_dtype(s.dtype) or pd.api.types.is_timedelta64_dtype(s.dtype)):
         try:
-            t = _numeric(path, name, s)
+            t = _numeric(path, name, s)[0]
         except LogError as e:
             s = _parse_times(s, e)
         else:
@@ -480,7 +492,9 @@ def _from_columns(path, names, units, data, time=None, time_unit="", keep=None) 
     for i in wanted:
         if i == it:
             continue
-        v = _numeric(path, names[i], _vector(path, names[i], data[i]))
+        v, n_text = _numeric(path, names[i], _vector(path, names[i], data[i]), text_as_missing=True)
+        if n_text:
+            attrs.setdefault("non_numeric", {})[names[i]] = n_text
         if v.size != seconds.size:
             raise LogError(f"{path}: column {names[i]!r} has {v.size} samples, "
                            f"the time column {seconds.size}")

@@ -428,3 +428,26 @@ def test_pwl_run_reads_a_folder_of_user_files_through_a_channel_map(demo, tmp_pa
         np.testing.assert_allclose(got.outputs["z_hat"], res.z_hat, rtol=1e-9)
     assert main(argv) == 0       # resumed: both skipped (same map)
     assert main(["run", est.db.path, str(logs / "other.h5"), "-o", str(tmp_path / "o2"), "-j", "1"]) == 1
+
+
+def test_a_few_text_cells_in_a_sensor_column_are_missing_values(tmp_path):
+    """Loggers write ERR or - where a sensor had no value: fewer than half such cells are
+    read as missing (NaN; counted in the log's attrs and warned about), so the flight still runs
+    with the other sensors; a column mostly of text is refused, naming it."""
+    from pwl.errors import PwlWarning
+    rows = ["time,Nf,T30"] + [f"{0.1 * i:.1f},{1000 + i},{700 + i}" for i in range(10)]
+    rows[3] = "0.2,1002,ERR"
+    rows[6] = "0.5,1005,-"
+    (tmp_path / "log.csv").write_text("\n".join(rows) + "\n")
+    with pytest.warns(PwlWarning, match=r"log.csv: column 'T30': 2 non-numeric value\(s\) read as missing "
+                                        r"\(the first 'ERR' at sample 2\)"):
+        log = read_log(tmp_path / "log.csv")
+    want = 700.0 + np.arange(10)
+    want[[2, 5]] = np.nan
+    np.testing.assert_array_equal(log.channels["T30"], want)
+    assert log.attrs["non_numeric"] == {"T30": 2}
+    rows = ["time,Nf,T30"] + [f"{0.1 * i:.1f},{1000 + i},{'ERR' if i % 2 else 700}" for i in range(10)]
+    (tmp_path / "bad.csv").write_text("\n".join(rows) + "\n")
+    with pytest.raises(LogError, match=r"bad.csv: column 'T30': non-numeric value 'ERR' at sample 1 "
+                                       r"\(5 of its 10 values are not numbers\)"):
+        read_log(tmp_path / "bad.csv")
