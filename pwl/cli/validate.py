@@ -4,17 +4,16 @@ import numpy as np
 from .output import check_output, plot_or_note
 
 #: default --max-error, % of the plant's value (every output but the stall margins): the shipped
-#: demo database stays below 0.93 % at steady state (20 random points, standard, hot and cold
-#: days), 1.29 % in the trim tables (200 points matched on the scheduling variables, each day)
-#: and 1.7 % in 5 % fuel steps (0, 6000, 12000 m); a wrong matrix goes far above
+#: demo database stays below 0.41 % in the trim tables (200 points matched on the scheduling
+#: variables, standard, hot and cold day) and in 5 % fuel steps (0, 6000, 12000 m), below 0.96 %
+#: at steady state at the same fuel flow on hot and cold days (the corrected-parameter model's own
+#: error: docs/building.md, "Model fidelity"); a wrong matrix goes far above
 MAX_ERROR = 2.0
 #: default --max-sm-error, percentage points (absolute) of a stall margin: the demo database
-#: stays below 0.41 points at steady state and in the trim tables on every day and 0.38 in the
-#: transients at 0 and 6000 m; at 12000 m its SmHPC is 0.57 points off and fails (its matrices
-#: are held at 6000 m: docs/building.md, "Model fidelity")
+#: stays below 0.24 points everywhere (steady state, trim tables, transients)
 MAX_SM_ERROR = 0.5
 #: default --transient-alts: the trim grid's lowest, middle and highest altitude (turbofan demo:
-#: 0, 6000 -- the dynamics' hold -- and 12000 m)
+#: 0, 6000 and 12000 m)
 TRANSIENT_ALTS = "grid"
 
 HELP = ("compare the piecewise-linear model (open loop) with the nonlinear plant: steady state and "
