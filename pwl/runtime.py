@@ -55,8 +55,9 @@ FLAG_PARTIAL = 256        # some sensors were missing: the update used the other
                           # update); FLAG_NO_UPDATE is set instead when it could not
 FLAG_HEALTH_HELD = 512    # the missing sensor is one the health estimates depend on (without it
                           # their steady-state standard deviation grows more than HEALTH_HOLD_RATIO
-                          # times): h_hat holds its last value from before (the tuners and the other
-                          # estimates go on, and the health estimates resume when it is back)
+                          # times), or two or more are missing: the tuners and h_hat hold their
+                          # last values (the states and outputs are still updated); they resume
+                          # when the sensors are back
 HEALTH_HOLD_RATIO = 3.0
 FLAG_STUCK = 1024         # a sensor's value has not changed for STUCK_AFTER seconds and its
                           # prediction moved more than STUCK_SIGMAS sensor standard deviations
@@ -556,9 +557,10 @@ def _sensor_out_gain(model, w, m, miss, oK, ny, na):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _measurement_update(model, grids, filt, w, update, oK, na, ny):
+def _measurement_update(model, grids, filt, w, update, oK, nx, na, ny, hold_q):
     """xi = xm + K res: K interpolated (or chosen above), or the zone gain of the nearest
-    dynamics node; xi = xm without an update."""
+    dynamics node; xi = xm without an update; with ``hold_q`` the tuners keep their prediction
+    (the health estimates are held: the states alone are updated)."""
     for i in range(na):
         w.xi[i] = w.xm[i]
     if not update:
@@ -570,6 +572,9 @@ def _measurement_update(model, grids, filt, w, update, oK, na, ny):
         _add_product(model.z_gains, model.z_labels[node] * na * ny, na, w.res, w.xi)
     else:
         _add_product(w.dw, oK, na, w.res, w.xi)
+    if hold_q:
+        for i in range(nx, na):
+            w.xi[i] = w.xm[i]
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -665,7 +670,7 @@ def _steps(io, model, grids, filt, bias, out, work):
             update = _subset_gain(w, w.Ps, w.pr, na * na, oC, oK, ny, na)
         if not update:
             flags = (flags & ~(FLAG_PARTIAL | FLAG_HEALTH_HELD)) | FLAG_NO_UPDATE
-        _measurement_update(model, grids, filt, w, update, oK, na, ny)
+        _measurement_update(model, grids, filt, w, update, oK, nx, na, ny, (flags & FLAG_HEALTH_HELD) != 0)
         _outputs(model, state, out, w, k, oF, oG, nx, nq, nz, tz, cz)
         out.flags[k] = flags
     return io.U.shape[0]

@@ -30,10 +30,11 @@ class ReferenceFilter:
     interpolated steady-state P at the first sample, then P = A P A^T + Q, K = P C^T (C P C^T +
     R)^-1 by ``np.linalg.solve``, P = (I - K C) P every step. ``zones``: a ZoneTable on the
     dynamics grid; K is the centroid gain of the zone of the nearest node (per axis argmin).
-    ``health_hold``: steady gains, one sensor out: h_hat repeats its last value where a node of
-    non-zero weight has a health standard-deviation ratio above it without that sensor. Steady
+    ``health_hold``: steady gains, one sensor out: the tuners keep their prediction (and h_hat
+    its last value) where a node of non-zero weight has a health standard-deviation ratio above
+    it without that sensor. Steady
     gains and sensors missing without a stored gain for the set (two or more, or none stored):
-    the present sensors' gain from the interpolated steady-state P and R, h_hat held.
+    the present sensors' gain from the interpolated steady-state P and R, tuners and h_hat held.
 
     Sensor checks (each sensor's noise std ``sd`` relative to its value: the median over the
     grid of sqrt(R_ii) over the median |y_trim|): a value repeated ``stuck_after`` seconds (in
@@ -205,6 +206,8 @@ class ReferenceFilter:
             else:
                 K = M["K"]
             xp = xm + K @ r
+            if hold:                      # health held: the tuners keep their prediction too
+                xp[nx:] = xm[nx:]
             z = tr["z"] + M["F"] @ xp + M["G"] @ du
             xa = tr["x"] + xp[:nx]
             q = xp[nx:]
