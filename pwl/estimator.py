@@ -58,7 +58,8 @@ class Estimator:
           :func:`linearize.zones.database_zones`): the centroid gain of the zone of the nearest
           dynamics node, instead of the interpolated K.
     q0 : array (nq,), optional
-        Initial tuners (default 0), e.g. the last flight's.
+        Initial tuners (default 0), e.g. the last flight's: where every :meth:`reset` (and so
+        every ``run``) starts them unless it is given other ones.
     bias : dict, optional
         The tuning element, adaptive bias tables on sensed channels: channel ->
         :class:`pwl.tables.AdaptiveTable` (from :meth:`new_bias_tables` or
@@ -82,8 +83,9 @@ class Estimator:
     stuck_after : float
         Seconds (default 2) a sensor's value must stay exactly the same before it counts as stuck:
         from then on, while its prediction has moved more than STUCK_SIGMAS (4) sensor standard
-        deviations since the value froze, it is left out of the update (FLAG_STUCK) until its
-        value changes. ``float("inf")``: never.
+        deviations since the value froze -- or at once if it was a noisy signal (its changes
+        averaged more than half a standard deviation) and the other sensors still change -- it is
+        left out of the update (FLAG_STUCK) until its value changes. ``float("inf")``: never.
 
     State persists across ``run`` / ``step`` calls until :meth:`reset` (one flight = reset,
     then run).
@@ -140,7 +142,7 @@ class Estimator:
                         "stuck": (stuck_after, STUCK_AFTER)}   # (value, default)
         sd = self._sensor_sd()
         stuck_n = min(np.ceil(stuck_after / self.db.dt), 2.0 ** 62)
-        self._model = self.pm.record(self.db.tuner["V_pinv"], np.stack([misfit_sigmas * sd, STUCK_SIGMAS * sd]),
+        self._model = self.pm.record(self.db.tuner["V_pinv"], np.stack([misfit_sigmas * sd, STUCK_SIGMAS * sd, sd]),
                                      int(stuck_n))
         self._grids = self.pm.grids(self.db)
         hr = db.attrs.get("health_ranges") or {}
@@ -148,7 +150,11 @@ class Estimator:
                                        dtype=np.float64) for i in (0, 1))
         self._set_bias(bias or {})
         self.steady = SteadyConfig()
-        self.reset(q0)
+        nq = self.db.n("q")
+        self.q0 = np.zeros(nq) if q0 is None else np.array(q0, dtype=np.float64).reshape(-1)
+        if self.q0.shape != (nq,) or not np.isfinite(self.q0).all():
+            raise UsageError(f"q0 {q0!r}: expected {nq} finite tuner values ({', '.join(self.db.names['q'])})")
+        self.reset()
 
     # ---- bias tables (the tuning element) ---------------------------------------------------
     def new_bias_tables(self, channels, axes=None, ratio: float = 100.0, law: str = "exact") -> dict:
@@ -248,7 +254,8 @@ class Estimator:
         Parameters
         ----------
         q0 : array_like (nq,), optional
-            Initial tuners (default 0: nominal health), e.g. the last flight's final ``q_hat``.
+            Initial tuners (default: the estimator's ``q0``, 0 unless given), e.g. the last
+            flight's final ``q_hat``.
         """
         nx, nu, ny, nz, nq, nh = self.pm.dims
         if getattr(self, "state", None) is None:   # arrays kept: a Stream holds them
@@ -258,7 +265,7 @@ class Estimator:
             self._h_held = np.empty(nh)
         *_, oyl, ost, _ = state_layout(nx, nq, nu, len(self.pm.schedule_channels), ny)
         self.state[:] = np.nan
-        self.state[nx:nx + nq] = 0.0 if q0 is None else np.asarray(q0, dtype=np.float64)
+        self.state[nx:nx + nq] = self.q0 if q0 is None else np.asarray(q0, dtype=np.float64)
         self._h_held[:] = self.db.tuner["h_ref"] + self.db.tuner["V_pinv"] @ self.state[nx:nx + nq]
         self.state[oyl + ny:ost + 1] = 0.0     # the stuck detector's counts, not started
         self.t_idx[:] = 0

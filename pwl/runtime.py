@@ -61,8 +61,9 @@ FLAG_HEALTH_HELD = 512    # the missing sensor is one the health estimates depen
 HEALTH_HOLD_RATIO = 3.0
 FLAG_STUCK = 1024         # a sensor's value has not changed for STUCK_AFTER seconds and its
                           # prediction moved more than STUCK_SIGMAS sensor standard deviations
-                          # meanwhile: a frozen sensor, left out of the update like a missing one
-                          # from then until its value changes
+                          # meanwhile, or it was a noisy signal that stopped (:func:`_stuck`): a
+                          # frozen sensor, left out of the update like a missing one from then
+                          # until its value changes
 STUCK_SIGMAS = 4.0
 STUCK_AFTER = 2.0
 
@@ -118,7 +119,8 @@ class Model(NamedTuple):
     V_pinv: np.ndarray     # (nh, nq)
     z_gains: np.ndarray    # zone gains, flat column-major (na x ny) per zone, or empty
     z_labels: np.ndarray   # int64 zone of every dynamics node, or empty
-    gate: np.ndarray       # (2, ny) misfit gate and stuck gate, fractions of the prediction
+    gate: np.ndarray       # (3, ny) misfit gate, stuck gate and sensor noise (standard deviation),
+                           # fractions of the prediction
     stuck_n: int           # samples a sensor's value must repeat before the stuck gate applies
     ko_tab: np.ndarray     # (dyn nodes * ny, ny * na) sensor-out gains, or (1, 0)
     ko_avail: np.ndarray   # int64 (dyn nodes * ny,) 0 none, 1 gain, 2 gain and health held
@@ -407,27 +409,33 @@ def _online_propagate(model, filt, w, first, m, oA, oQ, nx, na):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _stuck(model, state, o, ny, i, yk, s):
+def _stuck(model, state, o, ny, i, yk, s, others_change):
     """Whether sensor i's value yk (present; prediction s, physical) is stuck: the same value
-    for model.stuck_n samples or more and, since it froze, either the prediction moved more than
-    the stuck gate or the sensor had changed value on most samples before over at least as long
-    (a noisy signal that stopped); then stuck until the value changes. Sensor record in
-    state[o:]: rows of ny [last value, repeats (inf once stuck), prediction when it came, value
-    changes, samples], reset to [NaN, 0, 0, 0, 0]."""
+    for model.stuck_n samples or more while most other sensors still change (``others_change``:
+    not a whole log at rest, e.g. a noise-free simulation at steady state) and, since it froze,
+    either the prediction moved more than the stuck gate or it was a noisy signal that stopped
+    (before it froze its sample-to-sample change averaged more than half the sensor's noise,
+    model.gate[2], over at least as many samples; a sample-and-hold channel is not noisy); then
+    stuck until the value changes. Sensor record in
+    state[o:]: rows of ny [last value, repeats (inf once stuck), prediction when it came, sum of
+    |change| / |value|, samples], reset to [NaN, 0, 0, 0, 0]."""
     state[o + 4 * ny + i] += 1.0
-    if yk != state[o + i]:
+    last = state[o + i]
+    if yk != last:
+        if last == last and yk != 0.0:
+            state[o + 3 * ny + i] += abs(yk - last) / abs(yk)
         state[o + i] = yk
         state[o + ny + i] = 0.0
         state[o + 2 * ny + i] = s
-        state[o + 3 * ny + i] += 1.0
         return False
     state[o + ny + i] += 1.0
     rep = state[o + ny + i]
     if rep < model.stuck_n:
         return False
     before = state[o + 4 * ny + i] - rep
-    if (rep == np.inf or abs(s - state[o + 2 * ny + i]) > model.gate[1, i] * abs(s)
-            or (before >= model.stuck_n and state[o + 3 * ny + i] > 0.5 * before)):
+    if rep == np.inf or (others_change and (
+            abs(s - state[o + 2 * ny + i]) > model.gate[1, i] * abs(s)
+            or (before >= model.stuck_n and state[o + 3 * ny + i] > 0.5 * model.gate[2, i] * before))):
         state[o + ny + i] = np.inf
         return True
     return False
@@ -449,6 +457,12 @@ def _predict_measurements(io, model, bias, state, out, w, k, oC, oD, ny, ty, cy,
         w.yh[bias.chan[c]] += w.bias[c]
     n_miss = 0
     n_mis = 0
+    n_present = 0
+    n_changed = 0
+    for i in range(ny):
+        if np.isfinite(io.Y[k, i]):
+            n_present += 1
+            n_changed += io.Y[k, i] != state[oyl + i]
     for i in range(ny):
         s = w.yh[i] * w.fac[model.cls[cy + i]]
         yk = io.Y[k, i]
@@ -462,7 +476,7 @@ def _predict_measurements(io, model, bias, state, out, w, k, oC, oD, ny, ty, cy,
         w.res[i] = yk / w.fac[model.cls[cy + i]] - w.yh[i]
         r = yk - s
         out.residual[k, i] = r
-        if _stuck(model, state, oyl, ny, i, yk, s):
+        if _stuck(model, state, oyl, ny, i, yk, s, 2 * n_changed > n_present - 1):
             flags |= FLAG_STUCK
             w.use[i] = False
             w.res[i] = 0.0
@@ -980,8 +994,9 @@ class PackedModel:
         return int(state_layout(nx, nq, nu, len(self.schedule_channels), ny)[-1])
 
     def record(self, V_pinv: np.ndarray, gate: np.ndarray, stuck_n: int) -> Model:
-        """The kernel's :class:`Model` record: these tables, with V_pinv (nh, nq), the misfit and
-        stuck gates (2, ny) and the stuck detector's repeat count (samples)."""
+        """The kernel's :class:`Model` record: these tables, with V_pinv (nh, nq), the misfit gate,
+        stuck gate and sensor noise (3, ny; :attr:`Model.gate`) and the stuck detector's repeat
+        count (samples)."""
         nx, nu, ny, nz, nq, nh = (int(d) for d in self.dims)
         lay = block_layout(nx, nu, ny, nz, nq)
         width = lay[-1] if self.online else lay[-2] - (nx + nq) * ny * (self.z_gains.shape[0] > 0)

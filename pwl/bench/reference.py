@@ -38,10 +38,12 @@ class ReferenceFilter:
 
     Sensor checks (each sensor's noise std ``sd`` relative to its value: the median over the
     grid of sqrt(R_ii) over the median |y_trim|): a value repeated ``stuck_after`` seconds (in
-    samples of db.dt) while the prediction moved more than ``stuck_sigmas`` sd since it froze, or
-    after the sensor had changed value on more than half its samples over at least as long, is
-    left out (stuck) until the value changes; then the sensors whose residual exceeds ``misfit_sigmas`` sd of the
-    prediction are left out too, unless they are half the remaining ones or more."""
+    samples of db.dt), while more than half the other present sensors changed in this sample, and
+    either the prediction moved more than ``stuck_sigmas`` sd since it froze or its relative
+    sample-to-sample changes had averaged more than sd / 2 over at least as long before, is
+    left out (stuck) until the value changes; then the sensors whose residual exceeds
+    ``misfit_sigmas`` sd of the prediction are left out too, unless they are half the remaining
+    ones or more."""
 
     def __init__(self, db: GainDatabase, bias=None, online: bool = False, zones=None,
                  health_hold: float = 3.0, misfit_sigmas: float = 12.0, stuck_sigmas: float = 4.0,
@@ -57,7 +59,7 @@ class ReferenceFilter:
         R = db.kalman["R"].reshape(-1, ny, ny)
         sd = np.sqrt(np.median(np.diagonal(R, axis1=1, axis2=2), axis=0)) / np.median(
             np.abs(db.trim["y"].reshape(-1, ny)), axis=0)
-        self.misfit_gate, self.stuck_gate = misfit_sigmas * sd, stuck_sigmas * sd
+        self.misfit_gate, self.stuck_gate, self.sd = misfit_sigmas * sd, stuck_sigmas * sd, sd
         self.stuck_n = np.ceil(stuck_after / db.dt)
         ext = db.policy == "extrapolate"
         self.ext = ext
@@ -115,7 +117,7 @@ class ReferenceFilter:
         h_held = db.tuner["h_ref"].copy()
         ny = db.n("y")
         y_last, repeats, froze_at = np.full(ny, np.nan), np.zeros(ny), np.zeros(ny)
-        changes, seen = np.zeros(ny), np.zeros(ny)
+        change_sum, seen = np.zeros(ny), np.zeros(ny)
         for k in range(U.shape[0]):
             th, de = TH[k], DE[k]
             p = np.empty(len(db.schedule))
@@ -155,14 +157,19 @@ class ReferenceFilter:
             present = np.isfinite(r)
             seen += present
             same = present & (Y[k] == y_last)
+            others_change = 2 * (present & ~same).sum() > present.sum() - 1
+            moved = present & ~same & np.isfinite(y_last) & (Y[k] != 0)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                wander = np.where(moved, np.abs(Y[k] - y_last) / np.abs(Y[k]), 0.0)
+            change_sum += wander
             repeats = np.where(same, repeats + 1, 0.0)
             froze_at = np.where(same, froze_at, pred)
-            changes += present & ~same
             y_last = np.where(present, Y[k], y_last)
             before = seen - repeats
             stuck = same & (repeats >= self.stuck_n) & (
-                (repeats == np.inf) | (np.abs(pred - froze_at) > self.stuck_gate * np.abs(pred))
-                | ((before >= self.stuck_n) & (changes > 0.5 * before)))
+                (repeats == np.inf) | others_change & (
+                    (np.abs(pred - froze_at) > self.stuck_gate * np.abs(pred))
+                    | (before >= self.stuck_n) & (change_sum > 0.5 * self.sd * before)))
             repeats[stuck] = np.inf       # stuck until the value changes
             have = present & ~stuck
             misfit = have & (np.abs(res) > self.misfit_gate * np.abs(pred))
