@@ -487,7 +487,6 @@ def _from_columns(path, names, units, data, time=None, time_unit="", keep=None) 
     it = names.index(time)
     seconds, attrs = _seconds(path, time, _declared(units[it], time_unit, f"{path}: time column {time!r}"),
                               _vector(path, time, data[it]))
-    check_time(path, seconds)
     chans, cunits, truth, tunits = {}, {}, {}, {}
     for i in wanted:
         if i == it:
@@ -501,7 +500,34 @@ def _from_columns(path, names, units, data, time=None, time_unit="", keep=None) 
         name, d, u = ((names[i][6:], truth, tunits) if names[i].startswith("truth.")
                       else (names[i], chans, cunits))
         d[name], u[name] = v, units[i]
+    seconds = _drop_repeated_rows(path, seconds, chans, truth, attrs)
+    check_time(path, seconds)
     return Log(seconds, chans, cunits, truth, tunits, attrs, path)
+
+
+def _drop_repeated_rows(path, seconds, chans, truth, attrs):
+    """A logger that wrote a row twice (same time, every value the same or missing in both):
+    the copies are dropped (counted in ``attrs["repeated_rows"]``, a PwlWarning names the first);
+    the time column without them. Rows at one time with different values are left for
+    :func:`check_time` to refuse."""
+    same = np.flatnonzero(np.diff(seconds) == 0) + 1
+    if not same.size:
+        return seconds
+    for d in (chans, truth):
+        for v in d.values():
+            a, b = v[same], v[same - 1]
+            same = same[(a == b) | (np.isnan(a) & np.isnan(b))]
+    if not same.size:
+        return seconds
+    keep = np.ones(seconds.size, dtype=bool)
+    keep[same] = False
+    for d in (chans, truth):
+        for k in d:
+            d[k] = d[k][keep]
+    attrs["repeated_rows"] = int(same.size)
+    warnings.warn(PwlWarning(f"{path}: {same.size} repeated row(s) dropped (the same time and values as the "
+                             f"row before; the first at sample {same[0]}, time {float(seconds[same[0]])!r})"), stacklevel=4)
+    return seconds[keep]
 
 
 def _select(cmap) -> dict:

@@ -451,3 +451,21 @@ def test_a_few_text_cells_in_a_sensor_column_are_missing_values(tmp_path):
     with pytest.raises(LogError, match=r"bad.csv: column 'T30': non-numeric value 'ERR' at sample 1 "
                                        r"\(5 of its 10 values are not numbers\)"):
         read_log(tmp_path / "bad.csv")
+
+
+def test_a_row_logged_twice_is_dropped_and_a_conflicting_one_refused(tmp_path):
+    """A logger that wrote a row twice: the copy (same time, same values, NaN where the first
+    has NaN) is dropped, counted and warned about; two rows at one time with different values
+    are refused, naming the sample."""
+    from pwl.errors import PwlWarning
+    rows = ["time,Nf,T30", "0.0,1000,700", "0.1,1001,", "0.1,1001,", "0.2,1002,702"]
+    (tmp_path / "twice.csv").write_text("\n".join(rows) + "\n")
+    with pytest.warns(PwlWarning, match=r"twice.csv: 1 repeated row\(s\) dropped .* sample 2, time 0.1"):
+        log = read_log(tmp_path / "twice.csv")
+    np.testing.assert_array_equal(log.time, [0.0, 0.1, 0.2])
+    np.testing.assert_array_equal(log.channels["Nf"], [1000.0, 1001.0, 1002.0])
+    assert np.isnan(log.channels["T30"][1]) and log.attrs["repeated_rows"] == 1
+    rows[3] = "0.1,1001,701"
+    (tmp_path / "clash.csv").write_text("\n".join(rows) + "\n")
+    with pytest.raises(LogError, match=r"clash.csv: time does not increase at sample 2 \(0.1 -> 0.1\)"):
+        read_log(tmp_path / "clash.csv")

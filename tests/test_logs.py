@@ -112,7 +112,7 @@ def test_duplicate_columns_and_bad_time_are_refused(tmp_path):
     with pytest.raises(LogError, match=r"dup.csv: duplicate column\(s\) \['Wf'\]"):
         read_log(tmp_path / "dup.csv")
     for name, body, word in (("back.csv", "0,1\n0.2,1\n0.1,1\n", "does not increase at sample 2"),
-                             ("same.csv", "0,1\n0,1\n", "does not increase at sample 1"),
+                             ("same.csv", "0,1\n0,2\n", "does not increase at sample 1"),   # (0,1 twice: dropped)
                              ("inf.csv", "0,1\ninf,1\n", "is not finite at sample 1"),
                              ("nan.csv", "nan,1\n0.1,1\n", "is not finite at sample 0")):
         (tmp_path / name).write_text("time[s],Nf[rpm]\n" + body)
