@@ -656,7 +656,7 @@ class Estimator:
             acc = self._snapshot_accumulator(head.dt)
             with atomic_h5(out_path) as f:
                 init_result_file(f, {o: self.names[o] for o in keep}, log_path, {}, 0, head.attrs,
-                                 self.provenance | record, units, compression)
+                                 self.provenance | record, units, compression, rows=-(-n // every))
                 for a in range(0, n, chunk):
                     part = read_rows(head, a, min(n, a + chunk))
                     arrays = self._split(part)

@@ -175,6 +175,30 @@ def test_rerun_skips_finished_logs_and_recomputes_changed_ones(fleet, tmp_path):
     assert {r.status for r in forced} == {OK}
 
 
+def test_a_full_disk_stops_the_run_and_a_rerun_resumes(fleet, tmp_path, monkeypatch):
+    """The third results file finds no space (errno 28, as h5py reports it): the run stops there
+    with a DiskFullError naming the file and what to do, the two finished results stay, the
+    fourth log is not tried, and a rerun with space again skips the two and runs the rest."""
+    import errno
+
+    from pwl.fleet.runs import DiskFullError
+    real, calls = Estimator.run_file, []
+
+    def run_file(self, log_path, out_path, **kw):
+        calls.append(log_path)
+        if len(calls) == 3:
+            raise OSError(f"Can't write data (file write failed: errno = {errno.ENOSPC}, error message = "
+                          f"'No space left on device')")
+        return real(self, log_path, out_path, **kw)
+    monkeypatch.setattr(Estimator, "run_file", run_file)
+    with pytest.raises(DiskFullError, match=r"flight_000.estimates.h5: no space left on the disk \(2 of 4 logs "
+                                            r"done, their results kept; the run stops\).*--every N"):
+        run_many(DB, fleet, tmp_path / "out", workers=1)
+    assert len(calls) == 3 and len(stamps(tmp_path / "out")) == 2
+    monkeypatch.setattr(Estimator, "run_file", real)
+    assert [r.status for r in run_many(DB, fleet, tmp_path / "out", workers=1)] == [SKIPPED, SKIPPED, OK, OK]
+
+
 def test_run_many_own_pool_is_one_whose_workers_die_with_it(tmp_path, monkeypatch):
     """Without an executor, run_many makes its pool with pwl.workers.process_pool (workers end
     when the process that started them dies, even by SIGKILL), not a plain process pool."""

@@ -12,6 +12,7 @@ removes. :func:`write_summary` writes the fleet summary from the results files.
 from __future__ import annotations
 
 import csv
+import errno
 import importlib.util
 import os
 import socket
@@ -33,6 +34,16 @@ from ..results import (COUNT_KEYS, DEFAULT_COMPRESSION, ResultError, check_every
                       file_summary, open_results, select_outputs, selection_record)
 
 OK, SKIPPED, FAILED = "ok", "skipped", "failed"
+DISK_FULL = "disk full: "     # how a LogRun's error starts when its results did not fit
+
+
+class DiskFullError(PwlError, OSError):
+    """The results filled the disk: :func:`run_many` stops (every further log would fail too)."""
+
+
+def _disk_full(e: BaseException) -> bool:
+    """An error from a write that found no space (h5py reports errno 28 in its message)."""
+    return getattr(e, "errno", None) == errno.ENOSPC or "No space left on device" in str(e)
 
 #: the shared user cache of numba's compiled code (NUMBA_CACHE_DIR unless the user set it)
 USER_NUMBA_CACHE = os.path.join("~", ".cache", "pwl", "numba")
@@ -196,7 +207,8 @@ def _run_log(job: Job, log_path: str, out_path: str) -> LogRun:
                 row = file_summary(f)
         return LogRun(log_path, out_path, counts, None, OK, row)
     except Exception as e:  # reported with the log; the others go on
-        return LogRun(log_path, out_path, None, f"{type(e).__name__}: {e}", FAILED, {})
+        why = f"{DISK_FULL if _disk_full(e) else ''}{type(e).__name__}: {e}"
+        return LogRun(log_path, out_path, None, why, FAILED, {})
 
 
 # ---- the submitting side -------------------------------------------------------------------------
@@ -305,6 +317,9 @@ def run_many(db_path, log_paths, outdir, workers: int | None = None, csv: bool =
 
     Raises
     ------
+    DiskFullError
+        A results file did not fit on the disk: the run stops there (the finished results stay;
+        a rerun resumes after space is freed).
     DatabaseError
         The database cannot be opened.
     UsageError
@@ -337,6 +352,11 @@ def run_many(db_path, log_paths, outdir, workers: int | None = None, csv: bool =
             results[i] = item
             if progress:
                 progress(done, len(logs), item)
+            if item.error and item.error.startswith(DISK_FULL):
+                ok = sum(r is not None and r.status != FAILED for r in results)
+                raise DiskFullError(f"{item.output}: no space left on the disk ({ok} of {len(logs)} logs done, "
+                                    f"their results kept; the run stops). Free space in {outdir}, or write "
+                                    f"less: --every N, --outputs, --compression; a rerun resumes")
     finally:
         if own is not None:
             own.shutdown(cancel_futures=True)
@@ -377,15 +397,19 @@ def _each_result(executor, job: Job, logs, outs, batch: int = 1):
     starts = range(0, len(logs), batch)
     futs = {executor.submit(run_logs, job, list(zip(logs[a:a + batch], outs[a:a + batch]))): a for a in starts}
     order = as_completed(futs) if all(isinstance(f, Future) for f in futs) else list(futs)
-    for fut in order:
-        a = futs[fut]
-        try:
-            items = fut.result()
-        except Exception as e:  # the worker itself was lost (killed process, lost Dask worker)
-            items = [LogRun(logs[i], outs[i], None, f"{type(e).__name__}: {e}", FAILED, {})
-                     for i in range(a, min(a + batch, len(logs)))]
-        for k, item in enumerate(items):
-            yield a + k, item
+    try:
+        for fut in order:
+            a = futs[fut]
+            try:
+                items = fut.result()
+            except Exception as e:  # the worker itself was lost (killed process, lost Dask worker)
+                items = [LogRun(logs[i], outs[i], None, f"{type(e).__name__}: {e}", FAILED, {})
+                         for i in range(a, min(a + batch, len(logs)))]
+            for k, item in enumerate(items):
+                yield a + k, item
+    finally:   # stopped early (the caller gave up): the tasks not started are not run
+        for fut in futs:
+            fut.cancel()
 
 
 # ---- the fleet summary ---------------------------------------------------------------------------
