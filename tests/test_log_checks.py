@@ -179,8 +179,9 @@ def test_trusted_samples_leave_out_what_the_flags_call_suspect():
     from pwl.runtime import (FLAG_HEALTH, FLAG_MISFIT, FLAG_NO_UPDATE, FLAG_PARTIAL, FLAG_STUCK,
                              FLAG_TRIM_OUTSIDE)
     flags = np.array([0, FLAG_PARTIAL, FLAG_MISFIT | FLAG_PARTIAL, FLAG_STUCK | FLAG_PARTIAL,   # trusted
-                      FLAG_MISFIT, FLAG_NO_UPDATE, FLAG_HEALTH, FLAG_TRIM_OUTSIDE | FLAG_PARTIAL])
-    np.testing.assert_array_equal(trusted(flags), [True] * 4 + [False] * 4)
+                      FLAG_TRIM_OUTSIDE | FLAG_PARTIAL,
+                      FLAG_MISFIT, FLAG_NO_UPDATE, FLAG_HEALTH, FLAG_TRIM_OUTSIDE | FLAG_HEALTH])
+    np.testing.assert_array_equal(trusted(flags), [True] * 5 + [False] * 4)
 
 
 def test_a_unit_mistake_on_the_schedule_sensor_fails_the_run(tmp_path, capsys):
@@ -201,3 +202,25 @@ def test_a_unit_mistake_on_the_schedule_sensor_fails_the_run(tmp_path, capsys):
     assert code == 1 and err.count("TOO FEW") == 1
     line = err[err.index("TOO FEW"):].splitlines()[0]
     assert "samples trusted" in line and "misfit" in line and "outside the trim grid" in line and "Nf" in line
+
+
+def test_a_log_just_below_the_grid_is_trusted():
+    """A test cell on a high-pressure day logs -300 m pressure altitude: the operating point is
+    clipped to the grid's 0 m (flagged, counted) and the estimates are as good (Fn RMS within 2 %
+    of the unshifted run's), so the samples stay trusted and pwl run does not fail the log."""
+    from pwl.demo_data import demo_paths
+    from pwl.logs import read_log
+
+    db_path, logs = demo_paths()
+    log = read_log(logs[1])
+    low = Log(log.time, dict(log.channels, alt=log.channels["alt"] - 300.0), log.units, attrs=log.attrs)
+    est = Estimator(db_path)
+    a, b = est.run(log), est.run(low)
+    c = b.counts()
+    assert c["trim_outside"] > 10000 and c["trusted"] == c["updated"] == c["samples"]
+    rows = log.time >= log.time[0] + 120
+
+    def fn(r):
+        e = (r.channel("z_hat", "Fn") - log.truth["Fn"]) / log.truth["Fn"]
+        return np.sqrt(np.mean(e[rows] ** 2))
+    assert fn(b) <= 1.02 * fn(a)

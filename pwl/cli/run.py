@@ -47,8 +47,8 @@ def add_arguments(p):
     p.add_argument("--min-updated", type=float, default=MIN_UPDATED, metavar="FRACTION",
                    help="exit status 1 when a log has a measurement update, or trusted estimates, at "
                         "fewer than this fraction of its samples (default %(default)s): such a log's "
-                        "estimates are mostly open-loop predictions, or outside the trim grid, or with "
-                        "implausible health, or the model explains none of its sensors")
+                        "estimates are mostly open-loop predictions, or with implausible health, or the "
+                        "model explains none of its sensors")
     p.add_argument("--mode", choices=MODES, default=None,
                    help="how the update gain is made: steady (default) the database's steady-state "
                         "gains; untuned: the same with the tuners held at 0; online: the full Kalman "
@@ -253,8 +253,8 @@ def describe(counts: dict) -> str:
 
 def too_few(counts: dict, min_updated: float) -> str:
     """Why a log's estimates cannot be trusted -- fewer than ``min_updated`` of its samples had a
-    measurement update, or were trusted (:func:`pwl.results.trusted`: inside the trim grid,
-    plausible health, a model that explains the sensors) -- naming the channels that were
+    measurement update, or were trusted (:func:`pwl.results.trusted`: plausible health, a model
+    that explains the sensors) -- naming the channels that were
     missing or implausible and what else was flagged; "" if fine."""
     n = counts["samples"]
     updated = counts.get("updated", n)
