@@ -467,6 +467,8 @@ class Estimator:
 
     #: relative difference between a log's sample interval and the database's dt that is refused
     DT_TOLERANCE = 0.01
+    #: (ratio of the log's step to the database's, unit) that mean a time column in another unit
+    TIME_UNIT_MISTAKES = ((1000.0, "ms"), (1e6, "us"), (1e9, "ns"), (1 / 60, "min"), (1 / 3600, "h"))
 
     def _check_interval(self, log: Log, whole=None) -> Log:
         """The log if it is sampled at the database's dt (within :attr:`DT_TOLERANCE`); resampled
@@ -476,6 +478,11 @@ class Estimator:
         dt, want = sample_interval(log.time), self.db.dt
         if not np.isfinite(dt) or abs(dt / want - 1.0) <= self.DT_TOLERANCE:
             return log
+        for factor, unit in self.TIME_UNIT_MISTAKES:   # refused even with resample: 1000x the samples
+            if abs(dt / want / factor - 1.0) <= self.DT_TOLERANCE:
+                raise LogError(f"{log.path}: sampled every {dt:.6g} s, {factor:g} times the database's "
+                               f"{want:.6g} s: is its time column in {unit}? Declare the unit (a "
+                               f"'time[{unit}]' header, or the channel map's [time] unit)")
         if not self.resample:
             raise LogError(f"{log.path}: sampled every {dt * 1e3:.6g} ms, the database "
                            f"{os.path.basename(self.db.path)} is discretized for {want * 1e3:.6g} ms; "

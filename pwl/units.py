@@ -37,7 +37,8 @@ UNITS = {
     # force (N)
     "N": ("force", 1.0, 0.0), "kN": ("force", 1e3, 0.0), "lbf": ("force", 4.4482216152605, 0.0),
     # time (s): a log's time column
-    "s": ("time", 1.0, 0.0), "ms": ("time", 1e-3, 0.0), "min": ("time", 60.0, 0.0), "h": ("time", 3600.0, 0.0),
+    "s": ("time", 1.0, 0.0), "ms": ("time", 1e-3, 0.0), "us": ("time", 1e-6, 0.0), "µs": ("time", 1e-6, 0.0),
+    "ns": ("time", 1e-9, 0.0), "min": ("time", 60.0, 0.0), "h": ("time", 3600.0, 0.0),
     # ratios: percent and fraction are not interchangeable silently ("-" is also Mach's unit)
     "%": ("percent", 1.0, 0.0), "-": ("dimensionless", 1.0, 0.0),
 }

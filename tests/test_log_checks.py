@@ -224,3 +224,16 @@ def test_a_log_just_below_the_grid_is_trusted():
         e = (r.channel("z_hat", "Fn") - log.truth["Fn"]) / log.truth["Fn"]
         return np.sqrt(np.mean(e[rows] ** 2))
     assert fn(b) <= 1.02 * fn(a)
+
+
+@pytest.mark.parametrize("scale, unit", [(1000.0, "ms"), (1e6, "us"), (1 / 60, "min")])
+def test_a_time_column_in_another_unit_is_named_not_resampled(scale, unit):
+    """Time logged in ms but read as s looks like a log sampled every 15 s: resampling it to the
+    database's 15 ms would make 1000x the samples out of nothing. Refused, with or without
+    resample, naming the likely unit."""
+    db = names_db()
+    log = full_log(db, n=50)
+    wrong = Log(log.time * scale, log.channels, log.units, attrs={})
+    for resample in (False, True):
+        with pytest.raises(LogError, match=f"is its time column in {unit}\\? Declare the unit"):
+            Estimator(db, resample=resample).run(wrong)
