@@ -162,8 +162,8 @@ class ReferenceFilter:
             with np.errstate(invalid="ignore", divide="ignore"):
                 wander = np.where(moved, np.abs(Y[k] - y_last) / np.abs(Y[k]), 0.0)
             change_sum += wander
-            repeats = np.where(same, repeats + 1, 0.0)
-            froze_at = np.where(same, froze_at, pred)
+            repeats = np.where(same, repeats + 1, np.where(present, 0.0, repeats))   # a gap keeps the run
+            froze_at = np.where(present & ~same, pred, froze_at)
             y_last = np.where(present, Y[k], y_last)
             before = seen - repeats
             stuck = same & (repeats >= self.stuck_n) & (
