@@ -486,15 +486,17 @@ def _predict_measurements(io, model, bias, state, out, w, k, oC, oD, ny, ty, cy,
             n_mis += 1
     if n_mis > 0:
         flags |= FLAG_MISFIT
-    exclude = 2 * n_mis < ny - n_miss
+    exclude = n_mis > 0 and 2 * n_mis < ny - n_miss
+    n_out = n_miss + (n_mis if exclude else 0)
     miss = 0
-    for i in range(ny):
-        if w.use[i] and exclude and abs(out.residual[k, i]) > model.gate[0, i] * abs(out.y_hat[k, i]):
-            w.use[i] = False
-            w.res[i] = 0.0
-        if not w.use[i]:
-            miss = i
-    return flags, n_miss + (n_mis if exclude else 0), miss
+    if n_out > 0:   # (the common step has every sensor: no second pass)
+        for i in range(ny):
+            if w.use[i] and exclude and abs(out.residual[k, i]) > model.gate[0, i] * abs(out.y_hat[k, i]):
+                w.use[i] = False
+                w.res[i] = 0.0
+            if not w.use[i]:
+                miss = i
+    return flags, n_out, miss
 
 
 # how a step's update gain is made (:func:`_gain_choice`)
