@@ -15,12 +15,13 @@ from .grid import Axis, Grid
 from .h5io import atomic_h5
 from .logs import Log, LogError, read_header, read_log, read_rows, resample, sample_interval
 from .runtime import (FLAG_DYN_OUTSIDE, FLAG_NOT_STARTED, FLAG_TRIM_OUTSIDE, HEALTH_HOLD_RATIO, MISFIT_SIGMAS,
-                      STUCK_AFTER, STUCK_SIGMAS, Bias, Filter, Inputs, Outputs, PackedModel, blank_implausible, filter_loop, report, screen,
-                      state_layout)
+                      STUCK_AFTER, STUCK_SIGMAS, Bias, Filter, Inputs, Outputs, PackedModel, blank_implausible,
+                      filter_loop, report, screen, state_layout)
 from .results import LOG_ATTRS, Result, append_rows, init_result_file
 from .snapshots import SNAPSHOT_OUTPUTS, SnapshotAccumulator, SteadyConfig
 from .errors import PwlError, UsageError
 from .tables import LAWS, AdaptiveTable, TableError, save_tables
+from .units import UNITS
 
 OUTPUTS = ("x_hat", "q_hat", "h_hat", "y_hat", "residual", "z_hat")
 BIAS_PREFIX = "bias_"   # bias tables are stored as /tables/bias_<channel>
@@ -467,8 +468,6 @@ class Estimator:
 
     #: relative difference between a log's sample interval and the database's dt that is refused
     DT_TOLERANCE = 0.01
-    #: (ratio of the log's step to the database's, unit) that mean a time column in another unit
-    TIME_UNIT_MISTAKES = ((1000.0, "ms"), (1e6, "us"), (1e9, "ns"), (1 / 60, "min"), (1 / 3600, "h"))
 
     def _check_interval(self, log: Log, whole=None) -> Log:
         """The log if it is sampled at the database's dt (within :attr:`DT_TOLERANCE`); resampled
@@ -478,8 +477,11 @@ class Estimator:
         dt, want = sample_interval(log.time), self.db.dt
         if not np.isfinite(dt) or abs(dt / want - 1.0) <= self.DT_TOLERANCE:
             return log
-        for factor, unit in self.TIME_UNIT_MISTAKES:   # refused even with resample: 1000x the samples
-            if abs(dt / want / factor - 1.0) <= self.DT_TOLERANCE:
+        # a step that is a time unit's factor times dt (a time column in ms read as s) is refused
+        # even with resample, which would make 1000x the samples out of nothing
+        for unit, (quantity, seconds, _) in UNITS.items():
+            factor = 1.0 / seconds
+            if quantity == "time" and seconds != 1.0 and abs(dt / want / factor - 1.0) <= self.DT_TOLERANCE:
                 raise LogError(f"{log.path}: sampled every {dt:.6g} s, {factor:g} times the database's "
                                f"{want:.6g} s: is its time column in {unit}? Declare the unit (a "
                                f"'time[{unit}]' header, or the channel map's [time] unit)")

@@ -11,7 +11,7 @@ from pwl.estimator import Estimator
 from pwl.h5io import file_digest
 from pwl.logs import Log, LogError, write_log
 from pwl.runtime import FLAG_IMPLAUSIBLE
-from test_runtime import full_log, inputs, names_db
+from test_runtime import full_log, inputs, names_db, open_loop_y
 
 
 def ranged_db(**kw):
@@ -110,8 +110,8 @@ def explained_log(db):
     """:func:`log_of` whose sensors (but y1, the schedule channel) read what the model predicts
     open-loop (a run without measurements): a log the model explains."""
     log = log_of(db)
-    U, Y, S, TH, DE = inputs(db, n=len(log))         # what full_log wrote
-    y_hat = Estimator(db).run_arrays(U, np.full_like(Y, np.nan), S, TH, DE).outputs["y_hat"]
+    U, _, S, TH, DE = inputs(db, n=len(log))         # what full_log wrote
+    y_hat = open_loop_y(db, U, S, TH, DE)
     log.channels.update({c: y_hat[:, j] for j, c in enumerate(db.names["y"]) if c != "y1"})
     return log
 

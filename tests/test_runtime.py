@@ -33,6 +33,13 @@ def inputs(db, n=400, seed=0, outside=False, margin=0.2):
     return U, Y, S, TH, DE
 
 
+def open_loop_y(db, U, S, TH, DE):
+    """(n, ny) what the model predicts the sensors read, open loop (a run without measurements):
+    inputs for a log the model explains."""
+    Y = np.full((U.shape[0], db.n("y")), np.nan)
+    return Estimator(db).run_arrays(U, Y, S, TH, DE).outputs["y_hat"]
+
+
 def names_db(**kw):
     db = make_database(**kw)
     db.schedule = [("p0", False, 1.0), ("y1", True, 2.0)]   # p1 from channel y1, corrected

@@ -11,7 +11,7 @@ from pwl.bench.reference import ReferenceFilter
 from pwl.estimator import Estimator
 from pwl.runtime import FLAG_MISFIT, FLAG_NOT_STARTED, FLAG_PARTIAL, FLAG_STUCK
 from test_online import assert_equals_reference
-from test_runtime import inputs, names_db
+from test_runtime import inputs, names_db, open_loop_y
 
 
 def synthetic():
@@ -19,8 +19,7 @@ def synthetic():
     open-loop (a run without measurements), plus 0.01 % noise."""
     db = with_sensor_out_gains(names_db(ny=5), log=lambda *a: None)
     U, Y, S, TH, DE = inputs(db, n=260)
-    y_hat = Estimator(db).run_arrays(U, np.full_like(Y, np.nan), S, TH, DE).outputs["y_hat"]
-    Y = y_hat * (1 + 1e-4 * np.random.default_rng(5).normal(size=Y.shape))
+    Y = open_loop_y(db, U, S, TH, DE) * (1 + 1e-4 * np.random.default_rng(5).normal(size=Y.shape))
     return db, U, Y, S, TH, DE
 
 
