@@ -19,25 +19,33 @@ from .grid import Grid, locate
 def corner_weights(idx, frac, strides, wts, rows):
     """Fill the 2^n corner weights and table rows of the cell (idx, frac); return how many.
 
-    wts (float64) and rows (int64) need room for 2^n entries. Corners whose weight is exactly
-    zero (the point lies on a cell face) are dropped, so a point on a node costs one row copy.
+    wts (float64) and rows (int64) need room for 2^n entries. Corner c has bit j set when it is
+    the upper node on axis j, weight prod_j (frac_j or 1 - frac_j). Built axis by axis, the
+    corners so far doubled by each (2^n - 1 products instead of n 2^n). An axis whose fraction is
+    exactly 0 or 1 (the point lies on a cell face) does not double them: a point on a node costs
+    one row copy.
     """
-    n = idx.shape[0]
-    m = 0
-    for c in range(1 << n):
-        w = 1.0
-        r = 0
-        for j in range(n):
-            if (c >> j) & 1:
-                w *= frac[j]
-                r += (idx[j] + 1) * strides[j]
-            else:
-                w *= 1.0 - frac[j]
-                r += idx[j] * strides[j]
-        if w != 0.0:
-            wts[m] = w
-            rows[m] = r
-            m += 1
+    r = 0
+    for j in range(idx.shape[0]):
+        r += idx[j] * strides[j]
+    wts[0] = 1.0
+    rows[0] = r
+    m = 1
+    for j in range(idx.shape[0]):
+        f = frac[j]
+        s = strides[j]
+        if f == 0.0:
+            continue
+        if f == 1.0:
+            for c in range(m):
+                rows[c] += s
+            continue
+        g = 1.0 - f
+        for c in range(m):
+            wts[m + c] = wts[c] * f
+            rows[m + c] = rows[c] + s
+            wts[c] *= g
+        m *= 2
     return m
 
 

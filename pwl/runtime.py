@@ -92,6 +92,13 @@ def correction_factors(ex, theta, delta, fac):
         fac[c] = _power(theta, ex[c, 0]) * _power(delta, ex[c, 1])
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _u(i):
+    """An array index as unsigned: numba then leaves out the negative-index wraparound (a
+    compare and select per access, which also keeps loops from vectorising)."""
+    return np.uint64(i)
+
+
 # ---- the kernel's records: each layout defined here once ---------------------------------------
 class Inputs(NamedTuple):
     """Log samples of one call, raw units: U (n, nu), Y (n, ny), S (n, ns) schedule channels,
@@ -262,19 +269,20 @@ def _add_product(dw, o, rows, v, out):
     contiguous axpy per column, four rows per pass. The columns are short (2-12 rows): a
     compiler-vectorised loop pays its alias checks and remainder per column, which cost more
     than the arithmetic (measured 19 ns per step slower on the demo database)."""
+    n = _u(rows)
     for j in range(v.shape[0]):
         c = v[j]
-        b = o + j * rows
-        i = 0
-        while i + 4 <= rows:
+        b = _u(o + j * rows)
+        i = _u(0)
+        while i + _u(4) <= n:
             out[i] += dw[b + i] * c
-            out[i + 1] += dw[b + i + 1] * c
-            out[i + 2] += dw[b + i + 2] * c
-            out[i + 3] += dw[b + i + 3] * c
-            i += 4
-        while i < rows:
+            out[i + _u(1)] += dw[b + i + _u(1)] * c
+            out[i + _u(2)] += dw[b + i + _u(2)] * c
+            out[i + _u(3)] += dw[b + i + _u(3)] * c
+            i += _u(4)
+        while i < n:
             out[i] += dw[b + i] * c
-            i += 1
+            i += _u(1)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -383,10 +391,12 @@ def _time_update(model, state, w, oA, oB, nx, nu, nq, ou, tu):
         w.du[j] = state[ou + j] / w.fac[model.cls[nx + j]] - w.tw[tu + j]
     for i in range(nx):
         s = 0.0
+        a = _u(oA + i * na)
         for j in range(na):
-            s += w.dw[oA + i * na + j] * w.xi[j]
+            s += w.dw[a + _u(j)] * w.xi[j]
+        b = _u(oB + i * nu)
         for j in range(nu):
-            s += w.dw[oB + i * nu + j] * w.du[j]
+            s += w.dw[b + _u(j)] * w.du[j]
         w.xm[i] = s
     for i in range(nx, na):
         w.xm[i] = w.xi[i]
