@@ -99,6 +99,12 @@ def _u(i):
     return np.uint64(i)
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _factor(model, w, c):
+    """The parameter-correction factor theta^a delta^b of channel c (order x u y z s: Model.cls)."""
+    return w.fac[_u(model.cls[_u(c)])]
+
+
 # ---- the kernel's records: each layout defined here once ---------------------------------------
 class Inputs(NamedTuple):
     """Log samples of one call, raw units: U (n, nu), Y (n, ny), S (n, ns) schedule channels,
@@ -209,6 +215,7 @@ class Work(NamedTuple):
     yh: np.ndarray
     zh: np.ndarray
     fac: np.ndarray      # correction factor of every exponent pair
+    thde: np.ndarray     # (2,) the theta, delta fac was computed for (-1: not yet)
     b_frac: np.ndarray
     b_wts: np.ndarray
     b_rows: np.ndarray
@@ -336,11 +343,11 @@ def _interpolate(io, model, grids, filt, w, k, osl, ost, cs):
     for j in range(w.p.shape[0]):
         i = model.s_state[j]
         if i >= 0 and not np.isfinite(io.S[k, j]) and filt.state[ost] == 1.0:
-            v = filt.state[i] * w.fac[model.cls[i]] * model.s_scale[j]   # the estimate, physical
+            v = filt.state[i] * _factor(model, w, i) * model.s_scale[j]   # the estimate, physical
         else:
             v = filt.state[osl + j] * model.s_scale[j]
         if model.s_corr[j]:
-            v /= w.fac[model.cls[cs + j]]
+            v /= _factor(model, w, cs + j)
         w.p[j] = v
     for j in range(w.pt.shape[0]):
         w.pt[j] = w.p[grids.t_pidx[j]]
@@ -388,7 +395,7 @@ def _time_update(model, state, w, oA, oB, nx, nu, nq, ou, tu):
     for j in range(nq):
         w.xi[nx + j] = state[nx + j]
     for j in range(nu):
-        w.du[j] = state[ou + j] / w.fac[model.cls[nx + j]] - w.tw[tu + j]
+        w.du[j] = state[ou + j] / _factor(model, w, nx + j) - w.tw[tu + j]
     for i in range(nx):
         s = 0.0
         a = _u(oA + i * na)
@@ -474,7 +481,7 @@ def _predict_measurements(io, model, bias, state, out, w, k, oC, oD, ny, ty, cy,
             n_present += 1
             n_changed += io.Y[k, i] != state[oyl + i]
     for i in range(ny):
-        s = w.yh[i] * w.fac[model.cls[cy + i]]
+        s = w.yh[i] * _factor(model, w, cy + i)
         yk = io.Y[k, i]
         w.use[i] = np.isfinite(yk)      # NaN or +-Inf: no update from this sensor
         out.y_hat[k, i] = s
@@ -483,7 +490,7 @@ def _predict_measurements(io, model, bias, state, out, w, k, oC, oD, ny, ty, cy,
             w.res[i] = 0.0
             out.residual[k, i] = np.nan
             continue
-        w.res[i] = yk / w.fac[model.cls[cy + i]] - w.yh[i]
+        w.res[i] = yk / _factor(model, w, cy + i) - w.yh[i]
         r = yk - s
         out.residual[k, i] = r
         if _stuck(model, state, oyl, ny, i, yk, s, 2 * n_changed > n_present - 1):
@@ -612,11 +619,11 @@ def _outputs(model, state, out, w, k, oF, oG, nx, nq, nz, tz, cz):
     _add_product(w.dw, oF, nz, w.xi, w.zh)
     _add_product(w.dw, oG, nz, w.du, w.zh)
     for i in range(nz):
-        out.z_hat[k, i] = w.zh[i] * w.fac[model.cls[cz + i]]
+        out.z_hat[k, i] = w.zh[i] * _factor(model, w, cz + i)
     for j in range(nx):
         xa = w.tw[j] + w.xi[j]
         state[j] = xa
-        out.x_hat[k, j] = xa * w.fac[model.cls[j]]
+        out.x_hat[k, j] = xa * _factor(model, w, j)
     for j in range(nq):
         state[nx + j] = w.xi[nx + j]
         out.q_hat[k, j] = w.xi[nx + j]
@@ -632,74 +639,95 @@ def _outputs(model, state, out, w, k, oF, oG, nx, nq, nz, tz, cz):
             out.h_std[k, i] = math.sqrt(max(v, 0.0))
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _sizes(io, model, bias):
+    """The sizes and offsets every step uses, computed once per call (loads from the records
+    inside the loop are not hoisted out of it: the compiler cannot tell they are not written)."""
+    nx, nu, ny, nz, nq = model.dims[0], model.dims[1], model.dims[2], model.dims[3], model.dims[4]
+    return (nx, nu, ny, nz, nq, io.S.shape[1], bias.vals.shape[0]) + block_layout(nx, nu, ny, nz, nq) \
+        + state_layout(nx, nq, nu, io.S.shape[1], ny)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _step(io, model, grids, filt, bias, out, w, k, sizes):
+    """Sample k of :func:`filter_loop`'s records (``w`` its workspace, ``sizes`` from
+    :func:`_sizes`), one helper per line of the equations in the module docstring."""
+    nx, nu, ny, nz, nq, ns, nb, oA, oB, oC, oD, oF, oG, oK, oQ, oR, _, _, \
+        ox, oq, ou, osl, oth, ode, oyl, ost, _ = sizes
+    na = nx + nq
+    tu, ty, tz = nx, nx + nu, nx + nu + ny                    # trims: x u y z
+    cy, cz, cs = nx + nu, nx + nu + ny, nx + nu + ny + nz      # channel classes: x u y z s
+    state = filt.state
+    flags = out.flags[k] | _hold_inputs(io, k, state, ou, osl, oth)   # + FLAG_IMPLAUSIBLE of screen()
+    ok = True
+    for j in range(ou, oyl):
+        ok &= state[j] == state[j]
+    if not ok:  # nothing valid yet to predict from
+        out.flags[k] = flags | FLAG_NOT_STARTED
+        _not_started(out, k)
+        return
+    if state[oth] != w.thde[0] or state[ode] != w.thde[1]:   # w.fac: theta^a delta^b
+        w.thde[0], w.thde[1] = state[oth], state[ode]
+        correction_factors(model.ex, state[oth], state[ode], w.fac)
+    f, m, d_out = _interpolate(io, model, grids, filt, w, k, osl, ost, cs)
+    flags |= f
+    bm, b_out = 0, 0
+    if nb > 0:
+        bm, b_out = _bias_predict(bias, w, m, d_out, grids.extrapolate)
+    first = state[ost] == 0.0
+    if first:  # start at trim on the first valid sample
+        for j in range(nx):
+            state[ox + j] = w.tw[j]
+        state[ost] = 1.0
+    if model.online:
+        _online_propagate(model, filt, w, first, m, oA, oQ, nx, na)
+    _time_update(model, state, w, oA, oB, nx, nu, nq, ou, tu)
+    f, n_miss, miss = _predict_measurements(io, model, bias, state, out, w, k, oC, oD, ny, ty, cy, oyl)
+    part, how = _gain_choice(model, w, m, n_miss, miss, ny)
+    flags |= f | part
+    if nb > 0:  # the bias tables learn from complete updates only
+        for c in range(nb):
+            out.bias_hat[k, c] = w.bias[c] * _factor(model, w, cy + bias.chan[c])
+            if n_miss == 0 and b_out == 0 and bias.learn[c]:
+                table_update(bias.vals[c], bias.counts[c], w.b_wts, w.b_rows, bm,
+                             w.res[bias.chan[c]], bias.law, bias.ratio, w.b_frac)
+    update = how != GAIN_NONE
+    if model.online and update:  # the gain from P replaces the interpolated one
+        update = _subset_gain(w, w.P, w.dw, oR, oC, oK, ny, na)
+    elif how == GAIN_OUT:        # the stored gain without the missing sensor
+        _sensor_out_gain(model, w, m, miss, oK, ny, na)
+    elif how == GAIN_SUBSET:     # the present sensors' gain from the steady P and R
+        interp_rows(model.sub_tab, w.d_wts, w.d_rows, m, w.pr)
+        update = _subset_gain(w, w.Ps, w.pr, na * na, oC, oK, ny, na)
+    if not update:
+        flags = (flags & ~(FLAG_PARTIAL | FLAG_HEALTH_HELD)) | FLAG_NO_UPDATE
+    _measurement_update(model, grids, filt, w, update, oK, nx, na, ny, (flags & FLAG_HEALTH_HELD) != 0)
+    _outputs(model, state, out, w, k, oF, oG, nx, nq, nz, tz, cz)
+    out.flags[k] = flags
+
+
 @njit(cache=True, nogil=True, fastmath={"reassoc", "contract"}, _nrt=False)
 def _steps(io, model, grids, filt, bias, out, work):
-    """The step loop of :func:`filter_loop` (same records, plus its workspace ``work``), one
-    helper per line of the equations in the module docstring.
+    """The step loop of :func:`filter_loop` (same records, plus its workspace ``work``).
 
     Compiled without numba's reference counting (``_nrt=False``): the inlined helpers take
     arrays, and the atomic increments and decrements of their reference counts were a fifth
     of the time per step (perf; 418 -> 360 ns on the demo flight). It also makes any
     allocation in the loop a compile error."""
-    nx, nu, ny, nz, nq = model.dims[0], model.dims[1], model.dims[2], model.dims[3], model.dims[4]
-    na = nx + nq
-    ns = io.S.shape[1]
-    oA, oB, oC, oD, oF, oG, oK, oQ, oR, _, _ = block_layout(nx, nu, ny, nz, nq)
-    ox, oq, ou, osl, oth, ode, oyl, ost, _ = state_layout(nx, nq, nu, ns, ny)
-    tu, ty, tz = nx, nx + nu, nx + nu + ny                    # trims: x u y z
-    cy, cz, cs = nx + nu, nx + nu + ny, nx + nu + ny + nz      # channel classes: x u y z s
-    nb = bias.vals.shape[0]
-    state, w = filt.state, work
-    th_prev = -1.0
-    de_prev = -1.0
+    sizes = _sizes(io, model, bias)
     for k in range(io.U.shape[0]):
-        flags = out.flags[k] | _hold_inputs(io, k, state, ou, osl, oth)   # + FLAG_IMPLAUSIBLE of screen()
-        ok = True
-        for j in range(ou, oyl):
-            ok &= state[j] == state[j]
-        if not ok:  # nothing valid yet to predict from
-            out.flags[k] = flags | FLAG_NOT_STARTED
-            _not_started(out, k)
-            continue
-        if state[oth] != th_prev or state[ode] != de_prev:
-            th_prev, de_prev = state[oth], state[ode]
-            correction_factors(model.ex, th_prev, de_prev, w.fac)
-        f, m, d_out = _interpolate(io, model, grids, filt, w, k, osl, ost, cs)
-        flags |= f
-        bm, b_out = 0, 0
-        if nb > 0:
-            bm, b_out = _bias_predict(bias, w, m, d_out, grids.extrapolate)
-        first = state[ost] == 0.0
-        if first:  # start at trim on the first valid sample
-            for j in range(nx):
-                state[ox + j] = w.tw[j]
-            state[ost] = 1.0
-        if model.online:
-            _online_propagate(model, filt, w, first, m, oA, oQ, nx, na)
-        _time_update(model, state, w, oA, oB, nx, nu, nq, ou, tu)
-        f, n_miss, miss = _predict_measurements(io, model, bias, state, out, w, k, oC, oD, ny, ty, cy, oyl)
-        part, how = _gain_choice(model, w, m, n_miss, miss, ny)
-        flags |= f | part
-        if nb > 0:  # the bias tables learn from complete updates only
-            for c in range(nb):
-                out.bias_hat[k, c] = w.bias[c] * w.fac[model.cls[cy + bias.chan[c]]]
-                if n_miss == 0 and b_out == 0 and bias.learn[c]:
-                    table_update(bias.vals[c], bias.counts[c], w.b_wts, w.b_rows, bm,
-                                 w.res[bias.chan[c]], bias.law, bias.ratio, w.b_frac)
-        update = how != GAIN_NONE
-        if model.online and update:  # the gain from P replaces the interpolated one
-            update = _subset_gain(w, w.P, w.dw, oR, oC, oK, ny, na)
-        elif how == GAIN_OUT:        # the stored gain without the missing sensor
-            _sensor_out_gain(model, w, m, miss, oK, ny, na)
-        elif how == GAIN_SUBSET:     # the present sensors' gain from the steady P and R
-            interp_rows(model.sub_tab, w.d_wts, w.d_rows, m, w.pr)
-            update = _subset_gain(w, w.Ps, w.pr, na * na, oC, oK, ny, na)
-        if not update:
-            flags = (flags & ~(FLAG_PARTIAL | FLAG_HEALTH_HELD)) | FLAG_NO_UPDATE
-        _measurement_update(model, grids, filt, w, update, oK, nx, na, ny, (flags & FLAG_HEALTH_HELD) != 0)
-        _outputs(model, state, out, w, k, oF, oG, nx, nq, nz, tz, cz)
-        out.flags[k] = flags
+        _step(io, model, grids, filt, bias, out, work, k, sizes)
     return io.U.shape[0]
+
+
+@njit(cache=True, nogil=True, fastmath={"reassoc", "contract"}, _nrt=False)
+def one_step(io, model, grids, filt, bias, out, work):
+    """:func:`_steps` for one sample (row 0 of the records), compiled on its own for streaming
+    (:class:`pwl.streaming.Stream`): the loop's set-up (loop-invariant loads and address
+    checks hoisted out of it) cost about 0.6 us per call of :func:`_steps` with one sample.
+    Same flags and compilation options: the same bits."""
+    _step(io, model, grids, filt, bias, out, work, 0, _sizes(io, model, bias))
+    return 1
 
 
 @njit(cache=True, nogil=True)
@@ -772,7 +800,7 @@ def workspace(ns, model, grids, filt, bias):
                 np.empty(nt), np.empty(nd), np.empty(1 << nt), np.empty(1 << nt, dtype=np.int64),
                 np.empty(1 << nd), np.empty(1 << nd, dtype=np.int64),
                 np.empty(ns), np.empty(nt), np.empty(nd), np.empty(nu), np.empty(na), np.empty(na),
-                np.empty(ny), np.empty(ny), np.empty(nz), np.ones(model.ex.shape[0]),
+                np.empty(ny), np.empty(ny), np.empty(nz), np.ones(model.ex.shape[0]), np.full(2, -1.0),
                 np.empty(nbd), np.empty(1 << nbd), np.empty(1 << nbd, dtype=np.int64), np.empty(nbd),
                 np.zeros(max(nb, 1)), filt.cov[:no * no].reshape((no, no)),
                 np.empty((ro, no)), np.empty((mo, ng)), np.empty((no, no)), np.empty((mo, mo)),

@@ -1,4 +1,4 @@
-"""On-line estimation, one sample at a time, at batch speed.
+"""On-line estimation, one sample at a time, through the batch kernel.
 
 ``Estimator.run`` processes whole logs; a :class:`Stream` takes one sample per call, for a filter
 fed live (an engine monitoring unit, a test cell, a simulation in the loop)::
@@ -9,24 +9,31 @@ fed live (an engine monitoring unit, a test cell, a simulation in the loop)::
     ...                                  # in the database's units (stream.units)
     flags = stream.step(row)             # one sample: estimates in stream.x_hat, .z_hat, ...
 
-``step`` copies the sample into buffers allocated once and calls the same numba step loop as
-batch runs (:func:`pwl.runtime._steps`) with the same screening before and the same reporting
-pass after, through one compiled function whose only arguments are the stream's state (a numba
-structure) and the sample: its numbers equal a batch run's bit for bit, and a step costs about
-7 us against 1 us per batch step on the demo database (``pwl bench stream``: numba's call from
-Python and the kernel's per-call set-up are most of it; 97 us per sample before). The stream
+``step`` calls the same numba step (:func:`pwl.runtime.one_step`, the body of the batch loop
+compiled for one sample) with the same screening before and the same reporting pass after,
+through one compiled function whose only arguments are the stream's state (a numba structure)
+and the sample: its numbers equal a batch run's bit for bit. A step costs about 4 us from
+Python against 0.9 us per sample in batch on the demo database (``pwl bench stream``): numba's
+call from Python (0.5 us) and caches that the Python code between calls has emptied (the
+step's tables and code, about 1.5 us) are most of it; 97 us per sample before. Samples that
+arrive in packets (a data bus, a file being written) run at batch speed through
+``Estimator.run_arrays``, which continues from the current state. The stream
 shares the estimator's filter state: ``stream.reset()`` (or ``est.reset()``) restarts both.
 """
 from __future__ import annotations
 
+import numba
 import numpy as np
 from numba import njit
 from numba.core import types
 from numba.experimental import structref
 
 from .errors import UsageError
-from .runtime import (FLAG_DYN_OUTSIDE, FLAG_TRIM_OUTSIDE, Inputs, _steps, blank_implausible, report, screen,
+from .runtime import (FLAG_DYN_OUTSIDE, FLAG_TRIM_OUTSIDE, Inputs, blank_implausible, one_step, report, screen,
                       workspace)
+
+
+_F8 = np.dtype(np.float64)
 
 
 @structref.register
@@ -61,7 +68,7 @@ def _stream_step(st, row):
     lim, chan_count, q_hat, VT, h_ref, h_lo, h_hi, h_hat, h_held = st.post
     if screen(U, Y, S, TH, DE, lim, chan_count, flags):
         blank_implausible(U, Y, S, TH, DE, lim)
-    _steps(io, model, grids, filt, bias, out, st.work)
+    one_step(io, model, grids, filt, bias, out, st.work)
     report(q_hat, VT, h_ref, h_lo, h_hi, h_hat, flags, h_held)
     return flags[0]
 
@@ -112,6 +119,12 @@ class Stream:
                 db.tuner["h_ref"], *est._h_range, self.outputs["h_hat"], est._h_held)
         self._st = _StreamState(io, tuple(index) + th, records, work, post)
         self._check = db.policy == "error"
+        self._shape = (len(self.channels),)
+        _stream_step(self._st, np.zeros(self._shape))   # compiled (or loaded) for these types
+        # numba's compiled entry for exactly these argument types, called without the dispatcher's
+        # type resolution (0.8 us per call: hashing the state's structure type); step() checks the
+        # row's type itself
+        self._call = _stream_step.overloads[(numba.typeof(self._st), numba.typeof(np.zeros(1)))].entry_point
         for o, a in self.outputs.items():
             setattr(self, o, a[0])
 
@@ -133,12 +146,26 @@ class Stream:
         EnvelopeError
             The operating point left the grid and the database's policy is ``error``.
         """
-        f = _stream_step(self._st, row)
+        if not (row.__class__ is np.ndarray and row.dtype is _F8 and row.shape == self._shape
+                and row.flags.c_contiguous):
+            row = self._as_row(row)
+        f = self._call(self._st, row)
         if self._check and f & (FLAG_TRIM_OUTSIDE | FLAG_DYN_OUTSIDE):
             from .estimator import EnvelopeError
             raise EnvelopeError("stream: operating point outside the database grid and the "
                                 "database's out-of-range policy is 'error'")
         return int(f)
+
+    def _as_row(self, row) -> np.ndarray:
+        """``row`` as the float64 vector step() reads, or a UsageError naming what is wrong."""
+        try:
+            r = np.ascontiguousarray(row, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise UsageError(f"stream: a sample row must be numbers, one per channel {self.channels}") from None
+        if r.shape != self._shape:
+            raise UsageError(f"stream: a sample row has {len(self.channels)} values, one per channel "
+                             f"{self.channels}; got shape {np.shape(row)}")
+        return r
 
     def reset(self, q0=None) -> None:
         """Restart the filter (the estimator's state, shared) and the missing-sample counts."""

@@ -98,3 +98,33 @@ def test_stream_rows_and_policy_errors():
     assert np.isnan(none[1]) and (np.delete(none, 1) == 2.0).all()
     with pytest.raises(UsageError, match=f"channel {stream.channels[2]}: 'abc' is not a number"):
         stream.row(dict(full, **{stream.channels[2]: "abc"}))
+
+
+def test_step_takes_any_row_of_numbers_and_refuses_the_wrong_length():
+    """step() calls numba's compiled entry directly: rows of another type are converted first
+    (same numbers), and a row of the wrong length is refused (it was read out of bounds)."""
+    db = names_db()
+    est = Estimator(db)
+    stream = Stream(est)
+    U, Y, S, TH, DE = inputs(db, n=6)
+    rows = rows_of(stream, est, U, Y, S, TH, DE)
+    est.reset()
+    ref, _ = run_stream(stream, rows)
+    variants = [lambda r: list(r), lambda r: np.column_stack([r, r])[:, 0]]   # a list; a strided view
+    for make in variants:
+        est.reset()
+        got, _ = run_stream(stream, [make(r) for r in rows])
+        for o in ref:
+            np.testing.assert_array_equal(got[o], ref[o], err_msg=o)
+    for bad in (rows[0][:-1], np.append(rows[0], 1.0), rows[:2]):
+        with pytest.raises(UsageError, match=f"has {len(stream.channels)} values, one per channel"):
+            stream.step(bad)
+    with pytest.raises(UsageError, match="must be numbers"):
+        stream.step(["x"] * len(stream.channels))
+    ints = np.arange(len(stream.channels))            # an integer row: converted, not reinterpreted
+    est.reset()
+    f_int = stream.step(ints)
+    z_int = stream.z_hat.copy()
+    est.reset()
+    assert stream.step(ints.astype(np.float64)) == f_int
+    np.testing.assert_array_equal(stream.z_hat, z_int)
