@@ -9,6 +9,10 @@ Names are loaded on first use, so ``import pwl`` stays light. pwl imports numpy,
 """
 __version__ = "0.1.0"
 
+from . import kernel_cache as _kernel_cache
+
+_kernel_cache.check()   # before any kernel loads from numba's cache: none compiled from old sources
+
 from .grid import Axis, Grid  # noqa: F401
 from .interp import interpolate  # noqa: F401
 

@@ -24,6 +24,7 @@ from typing import NamedTuple
 
 from threadpoolctl import threadpool_limits
 
+from .. import kernel_cache
 from ..database import DatabaseError, GainDatabase
 from ..errors import PwlError, UsageError
 from ..formats import FLEET_SUMMARY, check
@@ -117,6 +118,7 @@ def use_numba_cache(path: str) -> int:
 
     os.makedirs(path, exist_ok=True)
     os.environ["NUMBA_CACHE_DIR"] = config.CACHE_DIR = path
+    kernel_cache.check()   # kernels cached there from older sources are not loaded
     seen, n = set(), 0
     for name, mod in list(sys.modules.items()):
         if not (name == "pwl" or name.startswith("pwl.")) or mod is None:

@@ -1,0 +1,77 @@
+"""pwl.kernel_cache: a kernel cached by numba with a helper of another file is not loaded after
+that helper's file changed (numba alone would load it: checked here first)."""
+import os
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+from pwl.kernel_cache import purge_stale_kernels, sources_stamp
+
+HELPER = textwrap.dedent("""
+    from numba import njit
+
+    @njit(cache=True, inline="always")
+    def helper():
+        return {value}
+""")
+KERNEL = textwrap.dedent("""
+    from numba import njit
+    from .a import helper
+
+    @njit(cache=True)
+    def kernel():
+        return helper()
+""")
+RUN = ("import sys; sys.path.insert(0, {root!r}); {guard}"
+       "from pkg.b import kernel; print(kernel())")
+
+
+def _package(root, value):
+    pkg = root / "pkg"
+    pkg.mkdir(exist_ok=True)
+    (pkg / "__init__.py").write_text("")
+    (pkg / "a.py").write_text(HELPER.format(value=value))
+    (pkg / "b.py").write_text(KERNEL)
+    return pkg
+
+
+def _run(root, pkg, guard, env):
+    g = f"from pwl.kernel_cache import purge_stale_kernels; purge_stale_kernels({str(pkg)!r}, " \
+        f"{env.get('NUMBA_CACHE_DIR')!r}); " if guard else ""
+    out = subprocess.run([sys.executable, "-c", RUN.format(root=str(root), guard=g)], env=env,
+                         capture_output=True, text=True, check=True)
+    return int(out.stdout.strip())
+
+
+@pytest.mark.parametrize("user_cache", [False, True])
+def test_a_changed_helper_file_recompiles_the_kernel(tmp_path, user_cache):
+    env = dict(os.environ)
+    env.pop("NUMBA_CACHE_DIR", None)
+    if user_cache:
+        env["NUMBA_CACHE_DIR"] = str(tmp_path / "cache")
+    for guard in (False, True):
+        root = tmp_path / ("guarded" if guard else "bare")
+        root.mkdir()
+        pkg = _package(root, 1)
+        assert _run(root, pkg, guard, env) == 1
+        assert _run(root, pkg, guard, env) == 1            # loaded from the cache
+        _package(root, 2)                                  # the helper's file alone changes
+        got = _run(root, pkg, guard, env)
+        assert got == (2 if guard else 1), (guard, got)   # numba alone: the stale kernel
+
+
+def test_stamp_follows_kernel_sources_only(tmp_path):
+    pkg = _package(tmp_path, 1)
+    s = sources_stamp(str(pkg))
+    (pkg / "notes.py").write_text("x = 1\n")               # no kernel in it
+    assert sources_stamp(str(pkg)) == s
+    (pkg / "a.py").write_text(HELPER.format(value=3))
+    assert sources_stamp(str(pkg)) != s
+    cache = pkg / "__pycache__"
+    cache.mkdir(exist_ok=True)
+    (cache / "b.kernel-5.py311.nbi").write_text("")
+    assert purge_stale_kernels(str(pkg)) == 1               # no stamp yet: purged
+    (cache / "b.kernel-5.py311.nbi").write_text("")
+    assert purge_stale_kernels(str(pkg)) == 0               # current: kept
