@@ -888,10 +888,11 @@ def report(q_hat, VT, h_ref, h_lo, h_hi, h_out, flags, h_held):
     nothing (compiled without reference counting, an array returned to a caller with it would
     be freed twice)."""
     nh = h_ref.shape[0]
+    last = -1            # the last sample whose estimate h_held takes (copied once, at the end)
     for k in range(q_hat.shape[0]):
         if flags[k] & FLAG_HEALTH_HELD:
             for i in range(nh):
-                h_out[k, i] = h_held[i]
+                h_out[k, i] = h_out[last, i] if last >= 0 else h_held[i]
         else:
             for i in range(nh):
                 h_out[k, i] = h_ref[i]
@@ -900,13 +901,15 @@ def report(q_hat, VT, h_ref, h_lo, h_hi, h_out, flags, h_held):
                 for i in range(nh):
                     h_out[k, i] += VT[j, i] * c
             if np.isfinite(h_out[k, 0]):
-                for i in range(nh):
-                    h_held[i] = h_out[k, i]
+                last = k
         out = False
         for i in range(nh):
             out |= (h_out[k, i] < h_lo[i]) | (h_out[k, i] > h_hi[i])   # no branch here: it costs ~40 %
         if out:
             flags[k] |= FLAG_HEALTH
+    if last >= 0:
+        for i in range(nh):
+            h_held[i] = h_out[last, i]
 
 
 def augment(d: dict, V_pinv: np.ndarray) -> dict:
