@@ -70,26 +70,28 @@ STUCK_AFTER = 2.0
 
 
 @njit(cache=True, nogil=True)
-def _power(v, a):
-    """v**a with the exponents of parameter correction (0, 1/2, 1, 3/2, ...) done without pow."""
+def _power(v, r, a):
+    """v**a with the exponents of parameter correction (0, 1/2, 1, 3/2, ...) done without pow;
+    r = sqrt(v)."""
     if a == 0.0:
         return 1.0
     if a == 1.0:
         return v
     if a == 0.5:
-        return math.sqrt(v)
+        return r
     if a == -0.5:
-        return 1.0 / math.sqrt(v)
+        return 1.0 / r
     if a == 1.5:
-        return v * math.sqrt(v)
+        return v * r
     return v ** a
 
 
 @njit(cache=True, nogil=True)
 def correction_factors(ex, theta, delta, fac):
     """fac[c] = theta^a_c delta^b_c for every distinct exponent pair ex[c] = (a_c, b_c)."""
+    rt, rd = math.sqrt(theta), math.sqrt(delta)
     for c in range(ex.shape[0]):
-        fac[c] = _power(theta, ex[c, 0]) * _power(delta, ex[c, 1])
+        fac[c] = _power(theta, rt, ex[c, 0]) * _power(delta, rd, ex[c, 1])
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -822,6 +824,15 @@ def _screen_value(v, lim, c, chan_count):
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _block_in(A, k, lim, c0):
+    """Every value of row k of A inside its column's range (see :func:`screen`)."""
+    ok = True
+    for j in range(A.shape[1]):
+        ok &= (lim[0, c0 + j] <= A[k, j]) & (A[k, j] <= lim[1, c0 + j])
+    return ok
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _screen_block(A, k, lim, c0, chan_count):
     """Screen row k of A (n, m) whose columns are c0.. of lim/chan_count (see :func:`screen`)."""
     f = 0
@@ -845,6 +856,10 @@ def screen(U, Y, S, TH, DE, lim, chan_count, flags):
     c = nu + ny + ns
     bad = 0
     for k in range(U.shape[0]):
+        if _block_in(U, k, lim, 0) & _block_in(Y, k, lim, nu) & _block_in(S, k, lim, nu + ny) \
+                & (lim[0, c] <= TH[k]) & (TH[k] <= lim[1, c]) & (lim[0, c + 1] <= DE[k]) & (DE[k] <= lim[1, c + 1]):
+            flags[k] = 0    # the common row, tested without a branch per value
+            continue
         f = _screen_block(U, k, lim, 0, chan_count) | _screen_block(Y, k, lim, nu, chan_count) \
             | _screen_block(S, k, lim, nu + ny, chan_count) \
             | _screen_value(TH[k], lim, c, chan_count) | _screen_value(DE[k], lim, c + 1, chan_count)
