@@ -347,7 +347,7 @@ def _interpolate(io, model, grids, filt, w, k, osl, ost, cs):
         if i >= 0 and not np.isfinite(io.S[k, j]) and filt.state[ost] == 1.0:
             v = filt.state[i] * _factor(model, w, i) * model.s_scale[j]   # the estimate, physical
         else:
-            v = filt.state[osl + j] * model.s_scale[j]
+            v = filt.state[_u(osl + j)] * model.s_scale[j]
         if model.s_corr[j]:
             v /= _factor(model, w, cs + j)
         w.p[j] = v
@@ -395,9 +395,9 @@ def _time_update(model, state, w, oA, oB, nx, nu, nq, ou, tu):
     for j in range(nx):
         w.xi[j] = state[j] - w.tw[j]
     for j in range(nq):
-        w.xi[nx + j] = state[nx + j]
+        w.xi[nx + j] = state[_u(nx + j)]
     for j in range(nu):
-        w.du[j] = state[ou + j] / _factor(model, w, nx + j) - w.tw[tu + j]
+        w.du[j] = state[_u(ou + j)] / _factor(model, w, nx + j) - w.tw[_u(tu + j)]
     for i in range(nx):
         s = 0.0
         a = _u(oA + i * na)
@@ -438,24 +438,26 @@ def _stuck(model, state, o, ny, i, yk, s, others_change):
     stuck until the value changes. Sensor record in
     state[o:]: rows of ny [last value, repeats (inf once stuck), prediction when it came, sum of
     |change| / |value|, samples], reset to [NaN, 0, 0, 0, 0]."""
-    state[o + 4 * ny + i] += 1.0
-    last = state[o + i]
+    d = _u(ny)
+    j = _u(o + i)          # unsigned indices: no wraparound code (see _u)
+    state[j + _u(4) * d] += 1.0
+    last = state[j]
     if yk != last:
         if last == last and yk != 0.0:
-            state[o + 3 * ny + i] += abs(yk - last) / abs(yk)
-        state[o + i] = yk
-        state[o + ny + i] = 0.0
-        state[o + 2 * ny + i] = s
+            state[j + _u(3) * d] += abs(yk - last) / abs(yk)
+        state[j] = yk
+        state[_u(j + d)] = 0.0
+        state[j + _u(2) * d] = s
         return False
-    state[o + ny + i] += 1.0
-    rep = state[o + ny + i]
+    state[_u(j + d)] += 1.0
+    rep = state[_u(j + d)]
     if rep < model.stuck_n:
         return False
-    before = state[o + 4 * ny + i] - rep
+    before = state[j + _u(4) * d] - rep
     if rep == np.inf or (others_change and (
-            abs(s - state[o + 2 * ny + i]) > model.gate[1, i] * abs(s)
-            or (before >= model.stuck_n and state[o + 3 * ny + i] > 0.5 * model.gate[2, i] * before))):
-        state[o + ny + i] = np.inf
+            abs(s - state[j + _u(2) * d]) > model.gate[1, i] * abs(s)
+            or (before >= model.stuck_n and state[j + _u(3) * d] > 0.5 * model.gate[2, i] * before))):
+        state[_u(j + d)] = np.inf
         return True
     return False
 
@@ -469,7 +471,7 @@ def _predict_measurements(io, model, bias, state, out, w, k, oC, oD, ny, ty, cy,
     of sensors left out, the last one left out)."""
     flags = 0
     for i in range(ny):
-        w.yh[i] = w.tw[ty + i]
+        w.yh[i] = w.tw[_u(ty + i)]
     _add_product(w.dw, oC, ny, w.xm, w.yh)
     _add_product(w.dw, oD, ny, w.du, w.yh)
     for c in range(bias.vals.shape[0]):
@@ -481,7 +483,7 @@ def _predict_measurements(io, model, bias, state, out, w, k, oC, oD, ny, ty, cy,
     for i in range(ny):
         if np.isfinite(io.Y[k, i]):
             n_present += 1
-            n_changed += io.Y[k, i] != state[oyl + i]
+            n_changed += io.Y[k, i] != state[_u(oyl + i)]
     for i in range(ny):
         s = w.yh[i] * _factor(model, w, cy + i)
         yk = io.Y[k, i]
@@ -617,7 +619,7 @@ def _outputs(model, state, out, w, k, oF, oG, nx, nq, nz, tz, cz):
     """z_hat = z_trim + F_a xi + G du; x_abs = x_trim + dx and q into the state; physical
     units out; online, the health standard deviations from P(k|k)."""
     for i in range(nz):
-        w.zh[i] = w.tw[tz + i]
+        w.zh[i] = w.tw[_u(tz + i)]
     _add_product(w.dw, oF, nz, w.xi, w.zh)
     _add_product(w.dw, oG, nz, w.du, w.zh)
     for i in range(nz):
@@ -627,7 +629,7 @@ def _outputs(model, state, out, w, k, oF, oG, nx, nq, nz, tz, cz):
         state[j] = xa
         out.x_hat[k, j] = xa * _factor(model, w, j)
     for j in range(nq):
-        state[nx + j] = w.xi[nx + j]
+        state[_u(nx + j)] = w.xi[nx + j]
         out.q_hat[k, j] = w.xi[nx + j]
     if model.online and out.h_std.shape[1] > 0:   # sqrt(diag(V_pinv P_qq V_pinv^T))
         Vp = model.V_pinv
