@@ -53,25 +53,15 @@ def corner_weights(idx, frac, strides, wts, rows):
 def interp_rows(table, wts, rows, m, out):
     """out[k] = sum_{c<m} wts[c] * table[rows[c], k] for k < out.size (out: float64, block).
 
-    Corners are taken four at a time (eight for the first eight) so that each pass over ``out``
-    streams several table rows (fewer passes over the output, vectorisable along k); the sums
-    are those of the four-at-a-time passes, in the same order.
+    Corners are taken four at a time so that each pass over ``out`` streams four table rows
+    (fewer passes over the output, vectorisable along k).
     """
     nb = out.shape[0]
     c = 0
     first = True
     while c < m:
         left = m - c
-        if left >= 8 and first:   # a 3-D cell in one pass: out written once
-            w0, w1, w2, w3 = wts[c], wts[c + 1], wts[c + 2], wts[c + 3]
-            w4, w5, w6, w7 = wts[c + 4], wts[c + 5], wts[c + 6], wts[c + 7]
-            r0, r1, r2, r3 = rows[c], rows[c + 1], rows[c + 2], rows[c + 3]
-            r4, r5, r6, r7 = rows[c + 4], rows[c + 5], rows[c + 6], rows[c + 7]
-            for k in range(nb):
-                out[k] = ((w0 * table[r0, k] + w1 * table[r1, k]) + (w2 * table[r2, k] + w3 * table[r3, k])) \
-                    + ((w4 * table[r4, k] + w5 * table[r5, k]) + (w6 * table[r6, k] + w7 * table[r7, k]))
-            c += 8
-        elif left >= 4:
+        if left >= 4:
             w0, w1, w2, w3 = wts[c], wts[c + 1], wts[c + 2], wts[c + 3]
             r0, r1, r2, r3 = rows[c], rows[c + 1], rows[c + 2], rows[c + 3]
             if first:
