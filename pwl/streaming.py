@@ -120,11 +120,12 @@ class Stream:
         self._st = _StreamState(io, tuple(index) + th, records, work, post)
         self._check = db.policy == "error"
         self._shape = (len(self.channels),)
-        _stream_step(self._st, np.zeros(self._shape))   # compiled (or loaded) for these types
-        # numba's compiled entry for exactly these argument types, called without the dispatcher's
-        # type resolution (0.8 us per call: hashing the state's structure type); step() checks the
-        # row's type itself
-        self._call = _stream_step.overloads[(numba.typeof(self._st), numba.typeof(np.zeros(1)))].entry_point
+        # numba's compiled entry for exactly these argument types (compiled or loaded here, not
+        # run), called without the dispatcher's type resolution (0.8 us per call: hashing the
+        # state's structure type); step() checks the row's type itself
+        sig = (numba.typeof(self._st), numba.typeof(np.zeros(1)))
+        _stream_step.compile(sig)
+        self._call = _stream_step.overloads[sig].entry_point
         for o, a in self.outputs.items():
             setattr(self, o, a[0])
 

@@ -128,3 +128,19 @@ def test_step_takes_any_row_of_numbers_and_refuses_the_wrong_length():
     est.reset()
     assert stream.step(ints.astype(np.float64)) == f_int
     np.testing.assert_array_equal(stream.z_hat, z_int)
+
+
+def test_a_new_stream_has_taken_no_sample():
+    """Making a Stream compiles its step without running it: the first sample after it starts
+    the filter as a batch run's first sample does, and nothing is counted missing."""
+    db = names_db()
+    est = Estimator(db)
+    U, Y, S, TH, DE = inputs(db, n=20)
+    stream = Stream(est)
+    assert all(v == 0 for v in stream.missing().values())
+    rows = rows_of(stream, est, U, Y, S, TH, DE)
+    out, flags = run_stream(stream, rows)
+    batch = Estimator(db).run_arrays(U, Y, S, TH, DE)
+    np.testing.assert_array_equal(flags, batch.flags)
+    for o in batch.outputs:
+        np.testing.assert_array_equal(out[o], batch.outputs[o], err_msg=o)
