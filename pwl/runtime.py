@@ -446,18 +446,18 @@ def _stuck(model, state, o, ny, i, yk, s, others_change):
         if last == last and yk != 0.0:
             state[j + _u(3) * d] += abs(yk - last) / abs(yk)
         state[j] = yk
-        state[_u(j + d)] = 0.0
+        state[j + d] = 0.0
         state[j + _u(2) * d] = s
         return False
-    state[_u(j + d)] += 1.0
-    rep = state[_u(j + d)]
+    state[j + d] += 1.0
+    rep = state[j + d]
     if rep < model.stuck_n:
         return False
     before = state[j + _u(4) * d] - rep
     if rep == np.inf or (others_change and (
             abs(s - state[j + _u(2) * d]) > model.gate[1, i] * abs(s)
             or (before >= model.stuck_n and state[j + _u(3) * d] > 0.5 * model.gate[2, i] * before))):
-        state[_u(j + d)] = np.inf
+        state[j + d] = np.inf
         return True
     return False
 
@@ -814,9 +814,15 @@ def workspace(ns, model, grids, filt, bias):
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _in_range(v, lim, c):
+    """v inside column c's plausible range lim[:, c] (False for NaN; no branch)."""
+    return (lim[0, c] <= v) & (v <= lim[1, c])
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _screen_value(v, lim, c, chan_count):
     """Screen one value of column c (see :func:`screen`); its flag bits."""
-    if lim[0, c] <= v <= lim[1, c]:
+    if _in_range(v, lim, c):
         return 0
     chan_count[0, c] += 1
     if not np.isfinite(v):
@@ -830,7 +836,7 @@ def _block_in(A, k, lim, c0):
     """Every value of row k of A inside its column's range (see :func:`screen`)."""
     ok = True
     for j in range(A.shape[1]):
-        ok &= (lim[0, c0 + j] <= A[k, j]) & (A[k, j] <= lim[1, c0 + j])
+        ok &= _in_range(A[k, j], lim, c0 + j)
     return ok
 
 
@@ -859,7 +865,7 @@ def screen(U, Y, S, TH, DE, lim, chan_count, flags):
     bad = 0
     for k in range(U.shape[0]):
         if _block_in(U, k, lim, 0) & _block_in(Y, k, lim, nu) & _block_in(S, k, lim, nu + ny) \
-                & (lim[0, c] <= TH[k]) & (TH[k] <= lim[1, c]) & (lim[0, c + 1] <= DE[k]) & (DE[k] <= lim[1, c + 1]):
+                & _in_range(TH[k], lim, c) & _in_range(DE[k], lim, c + 1):
             flags[k] = 0    # the common row, tested without a branch per value
             continue
         f = _screen_block(U, k, lim, 0, chan_count) | _screen_block(Y, k, lim, nu, chan_count) \
@@ -874,7 +880,7 @@ def screen(U, Y, S, TH, DE, lim, chan_count, flags):
 @njit(cache=True, nogil=True, inline="always")
 def _blank_block(A, k, lim, c0):
     for j in range(A.shape[1]):
-        if not lim[0, c0 + j] <= A[k, j] <= lim[1, c0 + j]:
+        if not _in_range(A[k, j], lim, c0 + j):
             A[k, j] = np.nan
 
 
@@ -888,9 +894,9 @@ def blank_implausible(U, Y, S, TH, DE, lim):
         _blank_block(U, k, lim, 0)
         _blank_block(Y, k, lim, nu)
         _blank_block(S, k, lim, nu + ny)
-        if not lim[0, c] <= TH[k] <= lim[1, c]:
+        if not _in_range(TH[k], lim, c):
             TH[k] = np.nan
-        if not lim[0, c + 1] <= DE[k] <= lim[1, c + 1]:
+        if not _in_range(DE[k], lim, c + 1):
             DE[k] = np.nan
 
 
