@@ -295,14 +295,66 @@ def sample_interval(time) -> float:
     return float(np.median(np.diff(time))) if len(time) > 1 else float("nan")
 
 
-def resample(log: Log, dt: float) -> Log:
-    """The log on a uniform time grid of step ``dt`` (s) from its first sample, every channel and
-    truth interpolated linearly (a NaN sample spoils its neighbours' interval only)."""
-    t = log.time[0] + np.arange(int(np.floor((log.time[-1] - log.time[0]) / dt + 1e-9)) + 1) * dt
+#: a time step longer than this many median steps is a gap in the log (a recorder dropout):
+#: counted in the results' provenance, and never bridged by :func:`resample`
+GAP_STEPS = 5.0
+
+
+def gap_starts(time) -> np.ndarray:
+    """Indices i of the gaps of a log's time column: time[i+1] - time[i] > :data:`GAP_STEPS`
+    median steps."""
+    step = np.diff(time)
+    return np.flatnonzero(step > GAP_STEPS * np.median(step)) if step.size else np.zeros(0, np.int64)
+
+
+def time_gaps(time) -> tuple[int, float]:
+    """(number of gaps, longest gap in s) of a log's time column (:func:`gap_starts`)."""
+    g = gap_starts(time)
+    return int(g.size), float((time[g + 1] - time[g]).max()) if g.size else 0.0
+
+
+@dataclass
+class Resampled:
+    """A log on a uniform time grid (:func:`resample`) and which of its rows hold information.
+
+    Attributes
+    ----------
+    log : Log
+        Every channel and truth interpolated linearly onto ``t0 + k dt`` (a NaN sample spoils its
+        neighbours' interval only); attrs ``dt``, ``resampled_from`` (the log's median step, s),
+        ``time_gaps`` and ``longest_gap_s``.
+    measured : ndarray (m,) bool
+        The rows nearest to a logged sample (within dt/2): where a measurement exists. The
+        others lie between samples of a slower log; their sensor values are interpolations
+        that carry no new information (a filter updated on them counts one sample many times).
+    in_gap : ndarray (m,) bool
+        The rows inside a gap of the log (:data:`GAP_STEPS`): nothing was logged there.
+    """
+
+    log: Log
+    measured: np.ndarray
+    in_gap: np.ndarray
+
+
+def resample(log: Log, dt: float) -> Resampled:
+    """The log on a uniform time grid of step ``dt`` (s) from its first sample (:class:`Resampled`)."""
+    time = log.time
+    n = int(np.floor((time[-1] - time[0]) / dt + 1e-9)) + 1
+    t = time[0] + np.arange(n) * dt
     def interp(d):
-        return {k: np.interp(t, log.time, v) for k, v in d.items()}
-    return Log(t, interp(log.channels), dict(log.units), interp(log.truth), dict(log.truth_units),
-               {**log.attrs, "dt": dt, "resampled_from": sample_interval(log.time)}, log.path)
+        return {k: np.interp(t, time, v) for k, v in d.items()}
+    i = np.clip(np.searchsorted(time, t), 1, max(1, len(time) - 1))
+    dist = np.abs(time[i - 1] - t) if len(time) == 1 else \
+        np.minimum(np.abs(time[i - 1] - t), np.abs(time[i] - t))
+    measured = dist <= dt / 2 * (1 + 1e-9)
+    in_gap = np.zeros(n, dtype=bool)
+    for g in gap_starts(time):
+        in_gap |= (t > time[g]) & (t < time[g + 1])
+    count, longest = time_gaps(time)
+    attrs = {**log.attrs, "dt": dt, "resampled_from": sample_interval(time), "time_gaps": count,
+             "longest_gap_s": longest}
+    return Resampled(Log(t, interp(log.channels), dict(log.units), interp(log.truth),
+                         dict(log.truth_units), attrs, log.path), measured, in_gap & ~measured)
 
 
 def check_time(path, time) -> None:

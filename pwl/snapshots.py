@@ -25,6 +25,9 @@ from .h5io import read_strings, write_strings
 
 SNAPSHOT_OUTPUTS = ("h_hat", "q_hat", "z_hat")
 
+#: the fewest samples a block of a steady window averages
+MIN_BLOCK = 8
+
 
 @dataclass(frozen=True)
 class SteadyConfig:
@@ -102,7 +105,9 @@ class SnapshotAccumulator:
         self.channels, self.p_names = list(channels), list(p_names)
         self.spans = np.asarray(spans, dtype=np.float64)
         self.dt, self.cfg = float(dt), config
-        self.bs = max(1, int(round(config.block / self.dt)))
+        # a block averages at least MIN_BLOCK samples: one noisy sample per block (a 1 Hz log)
+        # would leave the operating point's band at every block
+        self.bs = max(MIN_BLOCK, int(round(config.block / self.dt)))
         self.output_names = {k: list(v) for k, v in outputs.items()}
         self._ids, self._rows, self._t0, self._t1 = [], [], [], []
 

@@ -43,7 +43,8 @@ def add_arguments(p):
                         "the model's channels (docs/runtime.md, Log formats; default: none)")
     p.add_argument("--resample", action="store_true",
                    help="resample logs whose sample interval differs from the database's dt by more "
-                        "than 1 %% (linear interpolation; default: such logs are refused)")
+                        "than 1 %% (inputs interpolated linearly; the filter updates on the logged samples only "
+                        "and reports one row per sample; default: such logs are refused)")
     p.add_argument("--min-updated", type=float, default=MIN_UPDATED, metavar="FRACTION",
                    help="exit status 1 when a log has a measurement update, or trusted estimates, at "
                         "fewer than this fraction of its samples (default %(default)s): such a log's "
