@@ -19,7 +19,7 @@ from .runtime import (FLAG_DYN_OUTSIDE, FLAG_NOT_STARTED, FLAG_TRIM_OUTSIDE, HEA
                       filter_loop, report, screen, state_layout)
 from .results import LOG_ATTRS, Result, append_rows, init_result_file
 from .snapshots import SNAPSHOT_OUTPUTS, SnapshotAccumulator, SteadyConfig
-from .errors import PwlError, UsageError
+from .errors import PwlError, PwlWarning, UsageError
 from .tables import LAWS, AdaptiveTable, TableError, save_tables
 from .units import UNITS
 
@@ -409,12 +409,33 @@ class Estimator:
                     self.implausible[c] = self.implausible.get(c, 0) + int(chan_count[1, j])
                 j += 1
 
+    def absent_sensors(self, log: Log) -> list[str]:
+        """The sensed outputs (``db.names["y"]``) that a log lacks altogether, the turbofan's P15
+        or T48 for instance: they run as dead sensors, missing on every sample (the update uses
+        the others, as for a sensor that died). An input, a scheduling channel (even one that
+        is also a sensor, such as the turbofan's Nf: the filter cannot start without it) or
+        theta/delta cannot be done without: :meth:`run` raises a :class:`LogError` naming it."""
+        have = set(log.channels or log.units)        # a header (read_header) has units only
+        needed = set(self.pm.schedule_channels)      # the filter cannot start without them
+        return [c for c in self.db.names["y"] if c not in have and c not in needed]
+
+    def _warn_absent(self, log: Log) -> None:
+        absent = self.absent_sensors(log)
+        if absent:
+            import warnings
+            warnings.warn(f"{log.path}: no {', '.join(map(repr, absent))} channel: run without "
+                          f"{'that sensor' if len(absent) == 1 else 'those sensors'} (missing on "
+                          "every sample; a channel map renames a channel logged under another name)",
+                          PwlWarning, stacklevel=3)
+
     def _split(self, log: Log, rows=slice(None)):
-        """The kernel's input arrays from a log (checks presence and units of every channel)."""
+        """The kernel's input arrays from a log (checks presence and units of every channel;
+        :meth:`absent_sensors` NaN)."""
         db, pm = self.db, self.pm
         units = self.channel_units
+        absent = self.absent_sensors(log)
         def take(names):
-            return log.require(names, [units.get(n, "") for n in names])[rows]
+            return log.require(names, [units.get(n, "") for n in names], absent)[rows]
         U, Y, S = take(db.names["u"]), take(db.names["y"]), take(pm.schedule_channels)
         if pm.theta_channel:
             TD = take([pm.theta_channel, pm.delta_channel])
@@ -454,6 +475,7 @@ class Estimator:
         log = log if isinstance(log, Log) else read_log(log, channel_map=self.channel_map)
         if reset:
             self.reset()
+        self._warn_absent(log)
         if self._check_interval(log):
             res, arrays, log = self._run_resampled(log)
             dt = sample_interval(res.time)
@@ -530,7 +552,8 @@ class Estimator:
                "units_converted": json.dumps(log.conversions(
                    {c: self.channel_units.get(c, "") for c in self.input_channels})),
                "implausible_channels": json.dumps({c: n for c, n in self.implausible.items() if n}),
-               "missing_channels": json.dumps({c: n for c, n in self.missing.items() if n})}
+               "missing_channels": json.dumps({c: n for c, n in self.missing.items() if n}),
+               "absent_channels": json.dumps(self.absent_sensors(log))}
         if "resampled_from" in log.attrs:
             rec["resampled_from_dt"] = float(log.attrs["resampled_from"])
             rec["time_gaps"], rec["longest_gap_s"] = log.attrs["time_gaps"], log.attrs["longest_gap_s"]
@@ -691,6 +714,7 @@ class Estimator:
             snaps = res.snapshots
         else:
             n = len(head)
+            self._warn_absent(head)
             acc = self._snapshot_accumulator(head.dt)
             with atomic_h5(out_path) as f:
                 init_result_file(f, {o: self.names[o] for o in keep}, log_path, {}, 0, head.attrs,

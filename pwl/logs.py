@@ -79,11 +79,11 @@ class Log:
             return float(self.attrs["dt"])
         return sample_interval(self.time)
 
-    def require(self, names, units=None) -> np.ndarray:
+    def require(self, names, units=None, absent_ok=()) -> np.ndarray:
         """Stack channels ``names`` into a C-contiguous (n, k) array, in ``units`` if given: a
         channel declared in another known unit of the same quantity is converted (``kPa`` to
         ``Pa``, ``degC`` to ``K``, ...; :mod:`pwl.units`), one without a declared unit is taken
-        as it is.
+        as it is. A channel of ``absent_ok`` that the log lacks is NaN on every sample.
 
         Raises :class:`LogError` naming the file and the missing channel, or the channel whose
         unit cannot be converted.
@@ -91,6 +91,9 @@ class Log:
         out = np.empty((len(self), len(names)))
         for j, name in enumerate(names):
             if name not in self.channels:
+                if name in absent_ok:
+                    out[:, j] = np.nan
+                    continue
                 raise LogError(f"{self.path}: channel {name!r} is missing "
                                f"(log has: {', '.join(sorted(self.channels))})")
             out[:, j] = self.channels[name]

@@ -186,3 +186,21 @@ def test_every_option_has_help_stating_its_default(command):
         if a.option_strings and not a.required:
             assert "default" in a.help, f"pwl {where} {name}: default not stated"
     p.format_help()     # the %(default)s placeholders format
+
+
+def test_pwl_run_says_which_sensor_a_log_lacks_in_one_line(tmp_path, capsys):
+    """A log without P15 runs (P15 dead on every sample); ``pwl run`` says so on one line and
+    leaves Python's warning display as it was."""
+    import warnings
+
+    from pwl.logs import Log, read_log, write_log
+    log = read_log(os.path.join(DATA, "flight_new.h5"))
+    keep = [c for c in log.channels if c != "P15"]
+    write_log(tmp_path / "nop15.h5", Log(log.time[:4000], {c: log.channels[c][:4000] for c in keep},
+                                         {c: log.units[c] for c in keep}))
+    shown = warnings.showwarning
+    assert main(["run", DB, str(tmp_path / "nop15.h5"), "-o", str(tmp_path / "out"), "-j", "1"]) == 0
+    cap = capsys.readouterr()
+    assert "pwl: warning: " + str(tmp_path / "nop15.h5") + ": no 'P15' channel: run without that sensor" in cap.err
+    assert "4000 partial update" in cap.out + cap.err
+    assert warnings.showwarning is shown

@@ -288,3 +288,32 @@ def test_a_slow_log_updates_only_on_its_samples():
     assert res.time.size == k.size and res.counts()["updated"] == k.size
     assert health_rms(res) <= 1.5 * health_rms(native)
     assert len(res.snapshots) >= 1
+
+
+def test_a_log_without_a_sensor_channel_runs_as_that_sensor_dead(tmp_path):
+    """A sensed output the log lacks altogether (an engine without that sensor) runs as a sensor
+    missing on every sample, with a warning naming it; the result equals the run of the log
+    with that channel all NaN, in memory and through the chunked file run. A scheduling channel
+    (y1 here, also a sensor) or an input cannot be done without."""
+    from pwl.errors import PwlWarning
+    from pwl.results import Result
+
+    db = ranged_db()
+    log = log_of(db, n=300)
+    dead = Log(log.time, dict(log.channels, y2=np.full(300, np.nan)), log.units, path="dead.h5")
+    ref = Estimator(db).run(dead)
+    assert ref.counts()["partial"] == 300
+    lacks = Log(log.time, {k: v for k, v in log.channels.items() if k != "y2"}, log.units, path="lacks.h5")
+    with pytest.warns(PwlWarning, match="lacks.h5: no 'y2' channel: run without that sensor"):
+        res = Estimator(db).run(lacks)
+    np.testing.assert_array_equal(res.outputs["h_hat"], ref.outputs["h_hat"])
+    np.testing.assert_array_equal(res.flags, ref.flags)
+    assert json.loads(res.attrs["provenance"]["absent_channels"]) == ["y2"]
+    write_log(tmp_path / "lacks.h5", Log(lacks.time, lacks.channels, {k: u for k, u in log.units.items() if k != "y2"}))
+    with pytest.warns(PwlWarning, match="no 'y2' channel"):
+        Estimator(db).run_file(tmp_path / "lacks.h5", tmp_path / "res.h5", chunk=77)
+    np.testing.assert_array_equal(Result.load(tmp_path / "res.h5").outputs["q_hat"], ref.outputs["q_hat"])
+    for needed in ("y1", "u0", "Tin"):
+        without = Log(log.time, {k: v for k, v in log.channels.items() if k != needed}, log.units, path="x.h5")
+        with pytest.raises(LogError, match=f"x.h5: channel '{needed}' is missing"):
+            Estimator(db).run(without)

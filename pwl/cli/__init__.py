@@ -58,6 +58,9 @@ def main(argv=None) -> int:
 
     argv = sys.argv[1:] if argv is None else list(argv)
     args = _parser(COMMANDS).parse_args(argv)
+    import warnings
+    shown = warnings.showwarning
+    warnings.showwarning = _plain_pwl_warnings(shown)
     try:
         return int(args._run(args) or 0)
     except KeyboardInterrupt:
@@ -75,6 +78,22 @@ def main(argv=None) -> int:
               f"(rerun with 'pwl --debug {args.command} ...' for the traceback; please report it)",
               file=sys.stderr)
         return EXIT_INTERNAL
+    finally:
+        warnings.showwarning = shown
+
+
+def _plain_pwl_warnings(shown):
+    """A ``warnings.showwarning`` that prints a :class:`pwl.errors.PwlWarning` (a fallback taken
+    on the user's input) as one line ``pwl: warning: <message>`` instead of Python's file:line and
+    source line, and hands every other warning to ``shown``."""
+    from ..errors import PwlWarning
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        if issubclass(category, PwlWarning):
+            print(f"pwl: warning: {_one_line(message)}", file=file or sys.stderr)
+        else:
+            shown(message, category, filename, lineno, file, line)
+    return show
 
 
 def _one_line(e: BaseException) -> str:
