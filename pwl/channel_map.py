@@ -23,7 +23,7 @@ import tomllib
 from dataclasses import dataclass
 
 from .logs import Log, LogError, _declared, _missing
-from .units import UNITS
+from .units import UNITS, known
 
 
 class ChannelMapError(LogError):
@@ -95,7 +95,7 @@ class ChannelMap:
                 fail(key, "unknown key (a channel map has [time] and [channels])")
         time = doc.get("time", {})
         time = _entry({"column": time} if isinstance(time, str) else time, "[time]", ("column", "unit"), fail)
-        if time.get("unit", "") and UNITS.get(time["unit"], ("",))[0] != "time":
+        if time.get("unit", "") and UNITS.get(known(time["unit"]), ("",))[0] != "time":
             fail("[time] unit", f"{time['unit']!r} is not a unit of time (s, ms, min, h)")
         chans = doc.get("channels")
         if not isinstance(chans, dict) or not chans:
@@ -106,7 +106,7 @@ class ChannelMap:
             e = _entry({"column": spec} if isinstance(spec, str) else spec, key, ("column", "unit"), fail)
             if not e.get("column"):
                 fail(key, "needs a non-empty column = \"...\" (the log's column)")
-            if e.get("unit", "") and e["unit"] not in UNITS:
+            if e.get("unit", "") and known(e["unit"]) is None:
                 fail(f"{key} unit", f"{e['unit']!r} is not a unit pwl knows: {', '.join(UNITS)}")
             channels[name] = (e["column"], e.get("unit", ""))
         return cls(channels, time.get("column", ""), time.get("unit", ""), path)

@@ -44,6 +44,35 @@ UNITS = {
 }
 
 
+#: other spellings of known symbols, as data systems write them (matched case-insensitively)
+ALIASES = {"lb/hr": "lb/h", "lbs/hr": "lb/h", "lbs/h": "lb/h", "lbm/hr": "lb/h", "pps": "lb/s",
+           "lbs/s": "lb/s", "kg/hr": "kg/h", "deg c": "degC", "deg f": "degF", "deg r": "degR",
+           "°r": "degR", "°k": "K", "rev/min": "rpm", "sec": "s", "secs": "s", "seconds": "s",
+           "msec": "ms", "hr": "h", "hours": "h", "mins": "min", "feet": "ft", "bara": "bar"}
+
+
+def _folded() -> dict:
+    """Case-folded symbol -> symbol; the table has no two symbols equal but for case (checked)."""
+    out = {}
+    for sym in UNITS:
+        key = sym.casefold()
+        assert key not in out, f"units {out.get(key)!r} and {sym!r} differ by case only"
+        out[key] = sym
+    return out | {k.casefold(): v for k, v in ALIASES.items()}
+
+
+_FOLDED = _folded()
+
+
+def known(unit: str) -> str | None:
+    """The symbol of :data:`UNITS` a declared unit means: itself, else the same symbol in
+    another case or spacing (``RPM``, ``KPA``, ``DEGC``) or a spelling of :data:`ALIASES`
+    (``lb/hr``, ``deg C``); None for a unit pwl does not know."""
+    if unit in UNITS:
+        return unit
+    return _FOLDED.get(unit.strip().casefold()) or _FOLDED.get("".join(unit.split()).casefold())
+
+
 class UnitError(PwlError, ValueError):
     """A log channel's declared unit cannot be converted to the one the database uses."""
 
@@ -53,7 +82,7 @@ def converter(have: str, want: str, where: str = ""):
     equal or ``have`` is not declared. Raises :class:`UnitError` naming ``where`` otherwise."""
     if not have or have == want or not want:
         return 1.0, 0.0
-    a, b = UNITS.get(have), UNITS.get(want)
+    a, b = UNITS.get(known(have)), UNITS.get(known(want))
     if a is None or b is None:
         unknown = have if a is None else want
         raise UnitError(f"{where}: unit {have!r} cannot be converted to {want!r} ({unknown!r} is not "

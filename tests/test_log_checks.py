@@ -59,7 +59,13 @@ def test_implausible_values_are_flagged_and_held_like_missing_samples():
 @pytest.mark.parametrize("chan, unit, scale, offset", [("u0", "lb/s", 1 / 0.45359237, 0.0),
                                                          ("Tin", "degC", 1.0, -273.15),
                                                          ("Pin", "kPa", 1e-3, 0.0),
-                                                         ("y0", "degF", 1.8, -459.67)])
+                                                         ("y0", "degF", 1.8, -459.67),
+                                                         # as data systems write them
+                                                         ("u0", "LBS/HR", 3600 / 0.45359237, 0.0),
+                                                         ("Tin", "DEG C", 1.0, -273.15),
+                                                         ("Pin", "KPA", 1e-3, 0.0),
+                                                         ("Pin", "PSIA", 1 / 6894.757293168361, 0.0),
+                                                         ("y0", "°R", 1.8, 0.0)])
 def test_declared_units_are_converted(chan, unit, scale, offset):
     db = ranged_db()
     ref = Estimator(db).run(log_of(db))

@@ -123,3 +123,13 @@ def test_duplicate_columns_and_bad_time_are_refused(tmp_path):
     write_log(tmp_path / "t.h5", log)
     with pytest.raises(LogError, match="t.h5: time does not increase at sample 7"):
         read_header(tmp_path / "t.h5")
+
+
+def test_units_in_other_cases_and_spellings_are_known_and_unknown_ones_are_not():
+    from pwl.units import UNITS, UnitError, converter, known
+    assert [known(u) for u in ("RPM", "Rpm", "KPA", "deg C", "DEGF", "lb/hr", "sec", "kg/s")] == \
+        ["rpm", "rpm", "kPa", "degC", "degF", "lb/h", "s", "kg/s"]
+    assert all(known(u.upper()) == u for u in UNITS)          # no two symbols equal but for case
+    assert known("psig") is None and known("furlongs") is None   # gauge pressure needs ambient
+    with pytest.raises(UnitError, match="'psig' is not a unit pwl knows"):
+        converter("psig", "Pa", "x")
