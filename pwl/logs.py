@@ -220,7 +220,7 @@ def read_log(source, channel_map=None) -> Log:
         path = os.fspath(source)
         if not os.path.exists(path):
             raise LogError(f"{path}: no such file")
-        what, reader = _READERS.get(os.path.splitext(path)[1].lower(), ("HDF5", _read_hdf5))
+        what, reader = _reader(path)
         with _named(path, f"unreadable {what} log"):
             log = reader(path, cmap)
     return cmap.apply(log) if cmap is not None else log
@@ -395,10 +395,17 @@ def _read_group(f, name, n, path):
 
 
 def _split_header(cell: str):
+    """(name, unit) of a column header: ``name[unit]``, or ``name (unit)`` when the parentheses
+    hold a unit pwl knows (``Nf (rpm)``; ``Flow (corrected)`` stays a name)."""
+    from .units import known
     cell = cell.strip()
     if cell.endswith("]") and "[" in cell:
         i = cell.index("[")
         return cell[:i].strip(), cell[i + 1:-1].strip()
+    if cell.endswith(")") and "(" in cell:
+        i = cell.rindex("(")
+        if cell[:i].strip() and known(cell[i + 1:-1].strip()) is not None:
+            return cell[:i].strip(), cell[i + 1:-1].strip()
     return cell, ""
 
 
@@ -609,27 +616,86 @@ def _from_frame(path, df, cmap, names=None) -> Log:
 
 
 def _read_csv(path, cmap) -> Log:
-    """CSV through pandas: separator sniffed from the header (comma, semicolon or tab; a decimal
-    comma when the separator is not a comma and the first row has one), UTF-8, empty cells NaN."""
+    """Delimited text through pandas: separator sniffed from the header (comma, semicolon, tab,
+    else runs of spaces; a decimal comma when the separator is not a comma and the first row has
+    one), UTF-8, empty cells NaN. Leading ``#`` comment lines and blank lines are skipped; a row of
+    units under the header (``rpm, K, kPa, ...``: no cell a number, most cells units pwl knows)
+    declares the units. Compressed files (:data:`_COMPRESSED`) are read as they are."""
     import pandas as pd
-    with open(path, encoding="utf-8-sig", newline="") as fh:
-        header, first = fh.readline(), fh.readline()
+    with _open_text(path) as fh:
+        lines = [fh.readline() for _ in range(64)]
+    skip = 0
+    while skip < len(lines) and lines[skip] and (not lines[skip].strip() or lines[skip].lstrip().startswith("#")):
+        skip += 1
+    header, first = (lines[skip:] + ["", ""])[:2]
     if not header.strip():
         raise LogError(f"{path}: the file is empty")
     sep = max(",;\t", key=header.count)
-    cells = next(csv.reader([header.rstrip("\r\n")], delimiter=sep))
+    if not header.count(sep):
+        sep = r"\s+" if len(header.split()) > 1 else sep
+    def split(line):
+        line = line.rstrip("\r\n")
+        return line.split() if sep == r"\s+" else next(csv.reader([line], delimiter=sep), [])
+    cells = split(header)
+    unit_row = _unit_row(split(first), cells)
+    skiprows = list(range(skip)) + ([skip + 1] if unit_row else [])
+    if unit_row:
+        cells = [c if _split_header(c)[1] or not u.strip() else f"{c.strip()}[{u.strip()}]"
+                 for c, u in zip(cells, unit_row)]
+        first = lines[skip + 2] if skip + 2 < len(lines) else ""
     with warnings.catch_warnings():
         warnings.simplefilter("error", pd.errors.ParserWarning)   # pandas drops the extra fields
         try:
-            df = pd.read_csv(path, sep=sep, decimal="," if sep != "," and "," in first else ".",
-                             index_col=False, encoding="utf-8", **_EXACT_FLOATS)
+            df = pd.read_csv(path, sep=sep, decimal="," if sep in ";\t" and "," in first else ".",
+                             index_col=False, encoding="utf-8", skiprows=skiprows or None,
+                             compression=_COMPRESSED.get(os.path.splitext(path.lower())[1]), **_EXACT_FLOATS)
         except pd.errors.ParserWarning:
-            raise LogError(f"{path}: row 2 has more fields than the header ({len(cells)})") from None
+            raise LogError(f"{path}: row {len(skiprows) + 2} has more fields than the header ({len(cells)})") from None
     if len(cells) != df.shape[1]:
         raise LogError(f"{path}: the header has {len(cells)} fields, pandas read {df.shape[1]} columns")
-    if len(cells) > 1 and df.shape[0] and df.iloc[:, -1].isna().any():   # short rows read as NaN
-        _check_row_lengths(path, sep, len(cells))
+    if len(cells) > 1 and df.shape[0] and df.iloc[:, -1].isna().any():     # short rows read as NaN
+        _check_row_lengths(path, sep, len(cells), skip=len(skiprows) + 1)
     return _from_frame(path, df, cmap, names=cells)
+
+
+def _unit_row(row: list[str], header: list[str]) -> list[str] | None:
+    """``row`` if it is a row of units under ``header``: as many cells, none a number, and more
+    than half of the non-empty ones units pwl knows; else None."""
+    from .units import known
+    if len(row) != len(header):
+        return None
+    cells = [c.strip().strip("[]()") for c in row]
+    full = [c for c in cells if c]
+    def number(c):
+        try:
+            float(c.replace(",", "."))
+            return True
+        except ValueError:
+            return False
+    if not full or any(number(c) for c in full):
+        return None
+    return cells if sum(known(c) is not None for c in full) * 2 > len(full) else None
+
+
+def _open_text(path):
+    """The file as UTF-8 text (a byte-order mark dropped), decompressed per :data:`_COMPRESSED`."""
+    import io
+    kind = _COMPRESSED.get(os.path.splitext(path.lower())[1])
+    if kind == "zip":
+        import zipfile
+        z = zipfile.ZipFile(path)
+        names = [n for n in z.namelist() if not n.endswith("/")]
+        if len(names) != 1:
+            raise LogError(f"{path}: a zip archive holds {len(names)} files, a compressed log one")
+        raw = z.open(names[0])
+    elif kind:
+        import bz2
+        import gzip
+        import lzma
+        raw = {"gzip": gzip.open, "bz2": bz2.open, "xz": lzma.open}[kind](path, "rb")
+    else:
+        raw = open(path, "rb")
+    return io.TextIOWrapper(raw, encoding="utf-8-sig", newline="")
 
 
 #: pandas < 3 parses floats to within an ulp unless asked for the exact "round_trip" parser (the
@@ -637,11 +703,20 @@ def _read_csv(path, cmap) -> Log:
 _EXACT_FLOATS = {"float_precision": "round_trip"} if int(version("pandas").split(".")[0]) < 3 else {}
 
 
-def _check_row_lengths(path, sep, k) -> None:
-    """LogError naming the first non-blank row with fewer than ``k`` fields (pandas fills them with
-    NaN). Fields are counted by separators; a quoted separator counts too, so this runs only
-    when the last column has missing values."""
-    b = np.fromfile(path, dtype=np.uint8)
+def _check_row_lengths(path, sep, k, skip: int = 1) -> None:
+    """LogError naming the first non-blank row after the first ``skip`` lines (header, units,
+    comments) with fewer than ``k`` fields (pandas fills them with NaN). Fields are counted by
+    separators; a quoted separator counts too, so this runs only when the last column has
+    missing values. Space-separated text cannot have an empty cell: a row with fewer fields would
+    shift its values into the wrong columns."""
+    with _open_text(path) as fh:
+        if sep == r"\s+":
+            for row, line in enumerate(fh):
+                if row >= skip and line.strip() and len(line.split()) < k:
+                    raise LogError(f"{path}: row {row + 1} has {len(line.split())} field(s), the header has "
+                                   f"{k} (space-separated text cannot have an empty cell: write NaN)")
+            return
+        b = np.frombuffer(fh.buffer.read(), dtype=np.uint8)
     ends = np.flatnonzero(b == 10)
     if b.size and b[-1] != 10:
         ends = np.append(ends, b.size)
@@ -649,7 +724,7 @@ def _check_row_lengths(path, sep, k) -> None:
     seps = np.flatnonzero(b == ord(sep))
     fields = np.searchsorted(seps, ends) - np.searchsorted(seps, starts) + 1
     blank = (ends - starts) - (b[np.maximum(ends - 1, 0)] == 13) <= 0
-    short = np.flatnonzero((fields < k) & ~blank)
+    short = np.flatnonzero((fields < k) & ~blank & (np.arange(fields.size) >= skip))
     if short.size:
         raise LogError(f"{path}: row {short[0] + 1} has {fields[short[0]]} field(s), the header has {k}")
 
@@ -743,6 +818,31 @@ def _read_h5_columns(path, cmap) -> Log:
     return _from_columns(path, cols, units, data, time=time, time_unit=cmap.time_unit)
 
 
-#: file extension -> (format name, reader(path, channel map or None) -> Log); other: HDF5
+def _reader(path):
+    """(format name, reader) of a log file: by extension (:data:`_READERS`; a CSV compressed as
+    ``.gz``, ``.bz2``, ``.xz`` or ``.zip`` too); ``.h5``, ``.hdf5`` HDF5; any other extension
+    (``.txt``, ``.dat``, none) HDF5 when the file has HDF5's signature, else delimited text."""
+    stem, ext = os.path.splitext(path.lower())
+    if ext in _UNREAD:
+        raise LogError(f"{path}: {_UNREAD[ext]} is not a log format pwl reads (HDF5, CSV or other "
+                       "delimited text, Parquet, MAT); read it with pandas and pass the DataFrame "
+                       "(read_log(df), Estimator.run(df))")
+    if ext in _COMPRESSED:
+        return "compressed CSV", _read_csv
+    if ext in _READERS:
+        return _READERS[ext]
+    if ext in (".h5", ".hdf5", ".he5", ".nc") or h5py.is_hdf5(path):
+        return "HDF5", _read_hdf5
+    return "text (CSV)", _read_csv
+
+
+#: formats people have logs in that pwl does not read itself (a DataFrame of them does)
+_UNREAD = {".xlsx": "Excel", ".xls": "Excel", ".xlsm": "Excel", ".json": "JSON", ".feather": "Feather",
+           ".pkl": "a pickle", ".pickle": "a pickle", ".ods": "OpenDocument"}
+
+#: compressed text logs (pandas and the header sniffer decompress them)
+_COMPRESSED = {".gz": "gzip", ".bz2": "bz2", ".xz": "xz", ".zip": "zip"}
+
+#: file extension -> (format name, reader(path, channel map or None) -> Log); see :func:`_reader`
 _READERS = {".csv": ("CSV", _read_csv), ".tsv": ("CSV", _read_csv),
             ".parquet": ("Parquet", _read_parquet), ".mat": ("MAT", _read_mat)}

@@ -62,7 +62,9 @@ STAMP0 = pd.Timestamp("2024-03-05T10:00:00+01:00")
 
 
 @pytest.mark.parametrize("variant", ["pwl", "semicolon", "tab", "decimal-comma", "Time", "TIME",
-                                     "timestamp", "t-milliseconds", "time-last", "blank-lines"])
+                                     "timestamp", "t-milliseconds", "time-last", "blank-lines",
+                                     "units-row", "units-in-parentheses", "comments-first", "spaces",
+                                     "gzip", "zip", "txt", "no-extension"])
 def test_csv_variants_read_as_the_hdf5_log(demo, tmp_path, variant):
     est, h5, ref, _ = demo
     df, kw, name, tol = frame(ref), {}, "log.csv", 0.0
@@ -88,11 +90,29 @@ def test_csv_variants_read_as_the_hdf5_log(demo, tmp_path, variant):
             tol = 1e-12
         elif variant == "time-last":
             df = df[list(df.columns[1:]) + ["time[s]"]]
+        elif variant == "units-in-parentheses":     # Nf (rpm), Mach without a unit
+            df = df.rename(columns=lambda c: c.replace("[", " (").replace("]", ")"))
+        elif variant == "spaces":                   # space-separated columns, NaN written out
+            kw, name = {"sep": " ", "na_rep": "NaN"}, "log.dat"
+        elif variant in ("gzip", "zip"):
+            name = f"log.csv.{'gz' if variant == 'gzip' else 'zip'}"
+        elif variant in ("txt", "no-extension"):
+            kw, name = {"sep": "\t"}, "log.txt" if variant == "txt" else "log"
         df.to_csv(tmp_path / name, index=False, **kw)
         if variant == "blank-lines":
             text = (tmp_path / name).read_text().splitlines()
             (tmp_path / name).write_text("\n".join(text[:5] + [""] + text[5:]) + "\n\n")
+        elif variant == "units-row":                # a row of units (in capitals) under the names
+            head = [c.split("[")[0] for c in df.columns]
+            units = [(c.split("[")[1][:-1] if "[" in c else "").upper() for c in df.columns]
+            text = (tmp_path / name).read_text().splitlines()
+            (tmp_path / name).write_text("\n".join([",".join(head), ",".join(units)] + text[1:]) + "\n")
+        elif variant == "comments-first":
+            (tmp_path / name).write_text("# exported by a flight data tool\n#\n\n" + (tmp_path / name).read_text())
     log = read_log(tmp_path / name)
+    if variant == "units-row":
+        assert {k: u for k, u in log.units.items() if u} == {k: u.upper() for k, u in ref.units.items() if u}
+        log.units = ref.units          # RPM and rpm are one unit (test_logs.py)
     assert_same_log(log, ref, tol)
     if variant == "timestamp":
         assert log.attrs["start_time"] == "2024-03-05T10:00:00+01:00"
@@ -469,3 +489,23 @@ def test_a_row_logged_twice_is_dropped_and_a_conflicting_one_refused(tmp_path):
     (tmp_path / "clash.csv").write_text("\n".join(rows) + "\n")
     with pytest.raises(LogError, match=r"clash.csv: time does not increase at sample 2 \(0.1 -> 0.1\)"):
         read_log(tmp_path / "clash.csv")
+
+
+@pytest.mark.parametrize("name, what", [("log.xlsx", "Excel"), ("log.json", "JSON")])
+def test_formats_pwl_does_not_read_are_named_with_the_way_in(tmp_path, name, what):
+    (tmp_path / name).write_text("{}")
+    with pytest.raises(LogError, match=f"{name}: {what} is not a log format pwl reads .*pass the DataFrame"):
+        read_log(tmp_path / name)
+
+
+def test_an_hdf5_log_under_another_extension_is_read_as_hdf5(demo, tmp_path):
+    import shutil
+    _, h5, ref, _ = demo
+    shutil.copy(h5, tmp_path / "flight.bin")
+    assert_same_log(read_log(tmp_path / "flight.bin"), ref)
+
+
+def test_an_empty_cell_in_space_separated_text_is_named_not_shifted(tmp_path):
+    (tmp_path / "log.dat").write_text("time Nf Nc\n0 1 2\n0.015  2\n0.03 1 2\n")
+    with pytest.raises(LogError, match="log.dat: row 3 has 2 field.*the header has 3 .*write NaN"):
+        read_log(tmp_path / "log.dat")
