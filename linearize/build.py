@@ -378,10 +378,10 @@ def build(spec: BuildSpec, out_path, *, plant=None, executor: Executor | None = 
         h0[names["h"].index(k)] = float(v)
     noise = dict(getattr(plant, "sensor_noise", None) or {})
     noise.update(spec.r)
-    r_frac = per_channel(noise, names["y"], "sensor noise [kalman] r", spec.path)
+    r_frac = per_channel(noise, names["y"], "sensor noise [kalman] r", spec.path, positive=True)
     q_x = per_channel(spec.q_x, names["x"], "[kalman] q_x", spec.path)
     q_h = per_channel(spec.q_h, names["h"], "[kalman] q_h", spec.path)
-    h_sig = per_channel(spec.health_sigma, names["h"], "[tuners] health_sigma", spec.path)
+    h_sig = per_channel(spec.health_sigma, names["h"], "[tuners] health_sigma", spec.path, positive=True)
     targets = _targets(spec.targets, names, spec.path)
     if not 1 <= spec.n_tuners <= len(names["h"]):
         raise SpecError(f"{spec.path}: [tuners] n = {spec.n_tuners} must be in 1..{len(names['h'])} "
@@ -829,7 +829,7 @@ def retune(db: GainDatabase, *, n_tuners: int, method: str = "subset", targets=(
             "R": db.kalman["R"].reshape(dg.size, db.n("y"), -1)[i],
             "z_scale": np.maximum(np.abs(z_trim[i]), 1e-9)} for i in range(dg.size)]
     fd = design_filter(pts, names, dg, db.dyn_status, n_tuners, method,
-                       np.diag(per_channel(health_sigma, names["h"], "health_sigma", db.path) ** 2),
+                       np.diag(per_channel(health_sigma, names["h"], "health_sigma", db.path, positive=True) ** 2),
                        _targets(targets, names, db.path), progress, log)
     D = dg.shape
     attrs = dict(db.attrs, tuner_method=method, tuner_metric=fd["metric"],

@@ -278,8 +278,20 @@ def _grid(doc: dict, name: str, path: str, policy: str) -> Grid:
     return Grid(out, policy)
 
 
-def per_channel(value, names, what: str, where: str) -> np.ndarray:
-    """A scalar or a name -> value table as an array over ``names`` (names the unknown key)."""
+def per_channel(value, names, what: str, where: str, positive: bool = False) -> np.ndarray:
+    """A scalar or a name -> value table as an array over ``names`` (names the unknown key).
+    Every value is a standard deviation: finite and >= 0 (> 0 with ``positive``), else a
+    :class:`SpecError` naming it (a negative sigma is a sign mistake its square would hide)."""
+    out = _per_channel(value, names, what, where)
+    bad = ~np.isfinite(out) | (out <= 0 if positive else out < 0)
+    if bad.any():
+        j = int(np.flatnonzero(bad)[0])
+        raise SpecError(f"{where}: {what} for {names[j]!r} is {float(out[j])!r}: a standard deviation, it must be "
+                        f"finite and {'> 0' if positive else '>= 0'}")
+    return out
+
+
+def _per_channel(value, names, what: str, where: str) -> np.ndarray:
     values = value.values() if isinstance(value, dict) else [value]
     if not all(is_number(v) for v in values):
         raise SpecError(f"{where}: {what} = {value!r}: expected a number or a table of numbers")

@@ -273,6 +273,19 @@ def test_bad_specs_are_named(extra, msg):
         BuildSpec.parse(text, "bad.toml")
 
 
+@pytest.mark.parametrize("change, msg", [
+    (("q_h = 1e-4", "q_h = -1e-4"), r"\[kalman\] q_h for 'h1' is -0.0001: a standard deviation, it must be finite and >= 0"),
+    (("q_x = 1e-3", "q_x = nan"), r"\[kalman\] q_x for 'x1' is nan"),
+    (("n = 2", "n = 2\nhealth_sigma = 0"), r"\[tuners\] health_sigma for 'h1' is 0.0: .* > 0"),
+    (("q_h = 1e-4", "q_h = 1e-4\nr = {y1 = -0.01}"), r"sensor noise \[kalman\] r for 'y1' is -0.01"),
+])
+def test_noise_sigmas_that_are_not_standard_deviations_are_named(tmp_path, change, msg):
+    s = BuildSpec.parse(SPEC.format(method="subset").replace(*change), "sig.toml")
+    with pytest.raises(SpecError, match=msg):
+        build(s, tmp_path / "a.h5", executor=SerialExecutor(), progress=False, log=quiet)
+    assert not (tmp_path / "a.h5").exists()
+
+
 def test_spec_with_wrong_axes_is_named(tmp_path):
     s = BuildSpec.parse(SPEC.format(method="subset").replace("level", "altitude"), "axes.toml")
     with pytest.raises(SpecError, match="scheduling variables"):
