@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from pwl.fleet.diagnose import (DiagnosisConfig, EngineSeries, FlightRecord, diagnose_engine, hypotheses,
-                          noise_covariance)
+                          noise_covariance, recoveries)
 from pwl.fleet.scoring import kappa, score
 from pwl.snapshots import SnapshotAccumulator, SteadyConfig
 
@@ -126,6 +126,31 @@ def test_a_drift_is_reported_with_its_rate():
     last = diagnose_engine(series(D, S), np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0))[-1]
     assert last.detected and last.kind == "drift" and last.cls == "fan"
     assert last.magnitude == pytest.approx(-0.002, rel=0.1)
+
+
+def test_a_wash_is_a_recovery_and_a_later_fault_is_measured_from_it():
+    """A fan recovery (efficiency and flow up, a wash) at flight 6 is not a fault: kind recovery,
+    detected 0; the engine is then diagnosed on a new baseline, so a fan loss at flight 13 is
+    found and sized from the washed level (against one change point over the whole history it
+    would compete with the wash)."""
+    rng = np.random.default_rng(4)
+    S = synthetic_signatures()
+    sd = 1e-3
+    bank = {h.name: h for h in hypotheses(COLUMNS)}
+    D = rng.normal(0, sd, (20, 6))
+    D[6:] += S[:, bank["fan"].columns] @ np.array([0.02, 0.01])
+    D[13:] += S[:, bank["fan"].columns] @ np.array([-0.01, -0.005])
+    rows = diagnose_engine(series(D, S), np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0))
+    assert [r.detected for r in rows[:13]] == [0] * 13
+    washed = [r for r in rows if r.kind == "recovery"]
+    assert washed and washed[0].flight == 6 and washed[0].onset == 6 and washed[0].cls == "fan"
+    assert washed[0].status == "recovery" and washed[0].magnitude == pytest.approx(0.02, abs=4 * washed[0].magnitude_std)
+    # the new baseline starts at flight 6: n_base + 1 = 4 of its flights before a diagnosis
+    assert [r.status for r in rows[7:10]] == ["baseline", "baseline", "ok"]
+    last = rows[-1]
+    assert last.detected and last.cls == "fan" and last.onset == 13 and last.kind == "step"
+    assert last.magnitude == pytest.approx(-0.01, abs=4 * last.magnitude_std)
+    assert recoveries(rows) == washed[:1]
 
 
 def test_noise_covariance_recovers_the_scatter_despite_steps():

@@ -104,7 +104,7 @@ def run_diagnose(args) -> int:
     import numpy as np
 
     from ..database import GainDatabase
-    from ..fleet.diagnose import DiagnosisConfig, diagnose_fleet, write_diagnosis
+    from ..fleet.diagnose import DiagnosisConfig, diagnose_fleet, recoveries, write_diagnosis
     from ..fleet.trending import detail_units, readable_detail
 
     check_output(args.output)
@@ -143,6 +143,11 @@ def run_diagnose(args) -> int:
     for e, r in flagged.items():
         what = f"{r.kind} {readable_detail(r.detail, units)}"
         print(f"  {e}: {r.cls} from flight {r.onset}, {what}, confidence {r.confidence:.2f}")
+    rec = [(e, r) for e in engines for r in recoveries([d for d in rows if d.engine == e])]
+    if rec:
+        print(f"{len(rec)} recoveries (every efficiency up: a wash or a repair; diagnosed on a new baseline since):")
+        for e, r in rec:
+            print(f"  {e}: {r.cls} at flight {r.onset}, {readable_detail(r.detail, units)}")
     return 1 if skipped else 0
 
 

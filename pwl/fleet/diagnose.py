@@ -29,6 +29,10 @@ when nothing changed.
   as a two-parameter component change that fits it equally well); confidence = its share of exp((T - kappa * rank) / 2) over the bank.
 - **Sizing**: theta with its standard error from the same least squares.
 - **Drift**: a ramp that wins is reported as kind ``drift`` with its rate per flight.
+- **Recovery**: a component step whose efficiencies all rise (a compressor wash, a repair) is
+  not a fault: status and kind ``recovery``, ``detected`` 0. From its onset on the engine is
+  diagnosed on a new baseline (the flights before it are left out), so that a later fault is
+  measured from the recovered level.
 
 Sigma, the flight-to-flight scatter of a snapshot's deviations (sensor noise averaged over the
 window plus the model's interpolation error at changing conditions), is estimated from the data:
@@ -376,6 +380,9 @@ def _decide(dec, stage, bank, S, t, es, rowsok, n_tests, cfg) -> bool:
     order = np.argsort(-w)
     dec.detected, dec.cls, dec.statistic = 1, h.name, T
     dec.kind = "step" if shape == "step" else "drift"
+    effs = [v for c, v in zip(h.columns, th) if es.columns[c].endswith("_eff")]
+    if shape == "step" and effs and min(effs) > 0:     # every efficiency up: maintenance, not a fault
+        dec.detected, dec.kind, dec.status = 0, "recovery", "recovery"
     dec.onset = int(tau)
     dec.confidence = float(w[order[0]])
     dec.runner_up = bank[here[order[1]][1]].name if len(order) > 1 else ""
@@ -404,6 +411,7 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
     # flight then leaves a gap, and onsets and rates are in the logs' numbering), else positions
     fidx = [f.order[1] for f in es.flights]
     number = np.array(fidx if min(fidx, default=-1) >= 0 and len(set(fidx)) == n else range(n), float)
+    first = 0                  # the first flight of the current baseline (moved by a recovery)
     for k in range(n):
         r = es.flights[k]
         dec = Decision(es.engine, int(number[k]), r.label, r.source, "ok")
@@ -417,6 +425,7 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
         lost = dict.fromkeys(es.channels[j].split("@")[0] for j in range(m) if not present[k, j])
         dec.missing = " ".join(lost)
         rowsok = np.flatnonzero(np.all(upto[:, keep], axis=1))
+        rowsok = rowsok[rowsok >= first]
         if rowsok.size < cfg.n_base + 1:
             dec.status = "baseline"
             rows.append(dec)
@@ -447,8 +456,20 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
         for stage in (stage1, stage2):
             if stage and _decide(dec, stage, bank, Sbar_all, t, es, rowsok, n_tests, cfg):
                 break
+        if dec.kind == "recovery":
+            first = int(np.searchsorted(number, dec.onset))
         rows.append(dec)
     return rows
+
+
+def recoveries(decisions: list[Decision]) -> list[Decision]:
+    """The first decision of every recovery in one engine's decisions (time order)."""
+    out, seen = [], set()
+    for d in decisions:
+        if d.kind == "recovery" and (d.cls, d.onset) not in seen:
+            seen.add((d.cls, d.onset))
+            out.append(d)
+    return out
 
 
 # ---- many engines -------------------------------------------------------------------------------

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..database import GainDatabase
-from .diagnose import (DiagnosisConfig, Decision, FlightRecord, diagnose_engine, engine_series,
+from .diagnose import (DiagnosisConfig, Decision, FlightRecord, diagnose_engine, engine_series, recoveries,
                        noise_covariance, prepare)
 
 
@@ -118,7 +118,8 @@ class EngineTrend:
                  f"{'flight':<14}" + "".join(f"{s:>8}" for s in short) + "  diagnosis"]
         for i, lab in enumerate(self.labels):
             d = self.decisions[i]
-            verdict = f"{d.cls} {d.kind} since flight {d.onset}: {self.detail(d)}" if d.detected else d.status
+            verdict = f"{d.cls} {d.kind} since flight {d.onset}: {self.detail(d)}" \
+                if d.detected or d.kind == "recovery" else d.status
             lines.append(f"{lab[:14]:<14}" + "".join(f"{100 * v:>8.2f}" for v in self.H[i]) + f"  {verdict}")
         lines.append(f"{'level':<14}" + "".join(f"{100 * v:>8.2f}" for v in self.level))
         lines.append(f"{'slope/flight':<14}" + "".join(f"{100 * v:>8.3f}" for v in self.slope))
@@ -134,6 +135,9 @@ class EngineTrend:
         else:
             lines.append(f"no fault detected (p = {d.p_value:.3g})" if np.isfinite(d.p_value) else
                          f"no fault detected ({d.status})")
+        for r in recoveries(self.decisions):
+            lines.append(f"RECOVERY (maintenance?): {r.cls} at flight {r.onset}, size {100 * r.magnitude:+.2f} "
+                         f"+- {100 * r.magnitude_std:.2f} %; {self.detail(r)}; diagnosed on a new baseline since")
         return "\n".join(lines)
 
 
