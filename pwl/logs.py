@@ -846,3 +846,6 @@ _COMPRESSED = {".gz": "gzip", ".bz2": "bz2", ".xz": "xz", ".zip": "zip"}
 #: file extension -> (format name, reader(path, channel map or None) -> Log); see :func:`_reader`
 _READERS = {".csv": ("CSV", _read_csv), ".tsv": ("CSV", _read_csv),
             ".parquet": ("Parquet", _read_parquet), ".mat": ("MAT", _read_mat)}
+
+#: the file name endings of logs that a folder walk (``pwl run FOLDER``) picks up
+LOG_SUFFIXES = (".h5", ".hdf5", *_READERS, *(f".{t}{c}" for t in ("csv", "tsv") for c in _COMPRESSED))

@@ -318,7 +318,9 @@ def test_run_folder_takes_only_flight_logs(tmp_path):
     U, Y, S, TH, DE = inputs(db, n=20)
     write_log(tmp_path / "a.h5", Log(np.arange(20) * 0.015, {"u0": U[:, 0]}, {}))
     (tmp_path / "junk.h5").write_bytes(b"not hdf5")
-    assert expand([str(tmp_path)]) == [str(tmp_path / "a.h5")]
+    (tmp_path / "notes.txt").write_text("a README beside the logs")
+    (tmp_path / "b.csv.gz").write_bytes(b"")                 # a compressed CSV log is a log
+    assert expand([str(tmp_path)]) == [str(tmp_path / "a.h5"), str(tmp_path / "b.csv.gz")]
     assert expand([str(tmp_path / "db.h5")]) == [str(tmp_path / "db.h5")]  # named files are kept
 
 
@@ -329,3 +331,5 @@ def test_result_names_keep_folders_and_refuse_collisions():
     assert result_names(["q.h5"], ["ESN9/q.h5"]) == ["ESN9/q.h5"]
     with pytest.raises(ValueError, match="same results file"):
         result_names(["d1/f.h5", "d1/f.csv"])
+    with pytest.raises(ValueError, match="same results file"):
+        result_names(["d1/f.h5", "d1/f.csv.gz"])

@@ -86,7 +86,7 @@ def expand(paths, with_names: bool = False, any_hdf5: bool = False):
     log's results name (its path relative to the folder given, the file name for files given
     directly)."""
     from ..h5io import attr_str
-    from ..logs import FORMAT
+    from ..logs import FORMAT, LOG_SUFFIXES
 
     import h5py
 
@@ -100,7 +100,7 @@ def expand(paths, with_names: bool = False, any_hdf5: bool = False):
         for folder, dirs, files in os.walk(p):
             dirs.sort()
             found += [os.path.join(folder, f) for f in files
-                      if f.lower().endswith((".h5", ".hdf5", ".csv", ".tsv", ".parquet", ".mat"))
+                      if f.lower().endswith(LOG_SUFFIXES)
                       and not f.startswith(".") and ".estimates." not in f]
         for f in sorted(found):
             if f.lower().endswith((".h5", ".hdf5")):

@@ -217,8 +217,14 @@ def _run_log(job: Job, log_path: str, out_path: str) -> LogRun:
 def output_path(log_path, outdir, csv: bool = False, name: str | None = None) -> str:
     """Results file of a log: ``outdir/<name without extension>.estimates.h5`` (``.csv``); ``name``
     defaults to the log's file name and may hold sub-folders (``ESN001/flight_003.h5``)."""
-    base = os.path.splitext(os.fspath(name or os.path.basename(os.fspath(log_path))))[0]
+    base = _stem(os.fspath(name or os.path.basename(os.fspath(log_path))))
     return os.path.join(os.fspath(outdir), base + (".estimates.csv" if csv else ".estimates.h5"))
+
+
+def _stem(name: str) -> str:
+    """A log's name without its extension, and without the compression's (``flight.csv.gz``)."""
+    base, ext = os.path.splitext(name)
+    return os.path.splitext(base)[0] if ext.lower() in (".gz", ".bz2", ".xz", ".zip") else base
 
 
 def result_names(log_paths, names=None) -> list[str]:
@@ -234,7 +240,7 @@ def result_names(log_paths, names=None) -> list[str]:
             seen[n] = seen.get(n, 0) + 1
         out = [os.path.join(os.path.basename(os.path.dirname(os.path.abspath(p))), n) if seen[n] > 1 else n
                for p, n in zip(logs, out)]
-    stems = [os.path.splitext(n)[0] for n in out]
+    stems = [_stem(n) for n in out]
     if len(set(stems)) != len(stems):
         dup = sorted({s for s in stems if stems.count(s) > 1})
         raise UsageError(f"logs {dup[:3]} would write the same results file; give them distinct names "
