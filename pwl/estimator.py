@@ -435,7 +435,7 @@ class Estimator:
         units = self.channel_units
         absent = self.absent_sensors(log)
         def take(names):
-            return log.require(names, [units.get(n, "") for n in names], absent)[rows]
+            return log.require(names, [units.get(n, "") for n in names], absent, rows)
         U, Y, S = take(db.names["u"]), take(db.names["y"]), take(pm.schedule_channels)
         if pm.theta_channel:
             TD = take([pm.theta_channel, pm.delta_channel])
@@ -666,12 +666,13 @@ class Estimator:
         ----------
         log_path : str or path-like
             The log (any format :func:`pwl.logs.read_log` reads). HDF5 flight logs are read
-            ``chunk`` samples at a time; other formats (and logs that need resampling or a
-            channel map) are read whole.
+            ``chunk`` samples at a time; other formats (and logs through a channel map) are read
+            whole. The filter runs and writes ``chunk`` samples at a time (logs that need
+            resampling, and CSV results, whole).
         out_path : str or path-like
             The results file (HDF5; a ``.csv`` path writes CSV).
         chunk : int
-            Samples per chunk of an HDF5 log.
+            Samples per chunk.
         outputs : sequence of str or str, optional
             The outputs to write (names, or a comma-separated string; None: all of
             :attr:`names`); time and flags are always written.
@@ -703,11 +704,18 @@ class Estimator:
         record = selection_record(keep, every)
         units = output_units(self.names, self.db.names, self.db.units)
         self.reset()
-        head = None if self.channel_map is not None or not log_path.lower().endswith((".h5", ".hdf5")) \
-            else read_header(log_path)
+        if self.channel_map is None and log_path.lower().endswith((".h5", ".hdf5")):
+            head = read_header(log_path)            # samples read chunk by chunk below
+            def part(a, b):
+                p = read_rows(head, a, b)
+                return self._split(p), p.time
+        else:
+            head = read_log(log_path, channel_map=self.channel_map)     # other formats: whole
+            def part(a, b):
+                return self._split(head, slice(a, b)), head.time[a:b]
         totals = Totals()
-        if os.fspath(out_path).lower().endswith(".csv") or head is None or self._check_interval(head):
-            res = self.run(log_path, reset=False)
+        if os.fspath(out_path).lower().endswith(".csv") or self._check_interval(head):
+            res = self.run(head if head.channels else log_path, reset=False)
             res.units = units
             res.save(out_path, keep, every, compression)
             totals.add(res)
@@ -719,12 +727,11 @@ class Estimator:
             with atomic_h5(out_path) as f:
                 init_result_file(f, {o: self.names[o] for o in keep}, log_path, {}, 0, head.attrs,
                                  self.provenance | record, units, compression, rows=-(-n // every))
-                for a in range(0, n, chunk):
-                    part = read_rows(head, a, min(n, a + chunk))
-                    arrays = self._split(part)
-                    res = self.run_arrays(*arrays, time=part.time)
+                for a in range(0, n, chunk):     # outputs a chunk at a time, whatever the format
+                    arrays, time = part(a, min(n, a + chunk))
+                    res = self.run_arrays(*arrays, time=time)
                     self._check_envelope(res.flags, res.time, log_path)
-                    rows = thin_rows(a, len(part), every)
+                    rows = thin_rows(a, len(time), every)
                     append_rows(f, res.time[rows], {o: res.outputs[o][rows] for o in keep}, res.flags[rows])
                     self._accumulate(acc, a, res, arrays)
                     totals.add(res)

@@ -79,16 +79,17 @@ class Log:
             return float(self.attrs["dt"])
         return sample_interval(self.time)
 
-    def require(self, names, units=None, absent_ok=()) -> np.ndarray:
+    def require(self, names, units=None, absent_ok=(), rows=slice(None)) -> np.ndarray:
         """Stack channels ``names`` into a C-contiguous (n, k) array, in ``units`` if given: a
         channel declared in another known unit of the same quantity is converted (``kPa`` to
         ``Pa``, ``degC`` to ``K``, ...; :mod:`pwl.units`), one without a declared unit is taken
-        as it is. A channel of ``absent_ok`` that the log lacks is NaN on every sample.
+        as it is. A channel of ``absent_ok`` that the log lacks is NaN on every sample. ``rows``:
+        the samples to take (a slice; default all).
 
         Raises :class:`LogError` naming the file and the missing channel, or the channel whose
         unit cannot be converted.
         """
-        out = np.empty((len(self), len(names)))
+        out = np.empty((len(range(*rows.indices(len(self)))), len(names)))
         for j, name in enumerate(names):
             if name not in self.channels:
                 if name in absent_ok:
@@ -96,7 +97,7 @@ class Log:
                     continue
                 raise LogError(f"{self.path}: channel {name!r} is missing "
                                f"(log has: {', '.join(sorted(self.channels))})")
-            out[:, j] = self.channels[name]
+            out[:, j] = self.channels[name][rows]
             if units is not None:
                 try:
                     scale, offset = converter(self.units.get(name, ""), units[j], f"{self.path}: channel {name!r}")
