@@ -535,6 +535,13 @@ class Estimator:
                 raise LogError(f"{log.path}: sampled every {dt:.6g} s, {factor:g} times the database's "
                                f"{want:.6g} s: is its time column in {unit}? Declare the unit (a "
                                f"'time[{unit}]' header, or the channel map's [time] unit)")
+        top = float(np.max(np.abs(log.time)))
+        grain = float(np.spacing(np.float32(top)))
+        if grain > 0.05 * want and np.array_equal(log.time, log.time.astype(np.float32)):
+            raise LogError(f"{log.path}: the time column has a resolution of {grain * 1e3:.4g} ms at "
+                           f"t = {top:.8g} s (single-precision numbers?), too coarse for the database's "
+                           f"{want * 1e3:.6g} ms step: store it in double precision, or from the start "
+                           "of the log")
         if not self.resample:
             raise LogError(f"{log.path}: sampled every {dt * 1e3:.6g} ms, the database "
                            f"{os.path.basename(self.db.path)} is discretized for {want * 1e3:.6g} ms; "

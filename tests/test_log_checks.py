@@ -323,3 +323,16 @@ def test_a_log_without_a_sensor_channel_runs_as_that_sensor_dead(tmp_path):
         without = Log(log.time, {k: v for k, v in log.channels.items() if k != needed}, log.units, path="x.h5")
         with pytest.raises(LogError, match=f"x.h5: channel '{needed}' is missing"):
             Estimator(db).run(without)
+
+
+def test_a_time_column_in_single_precision_is_named():
+    """Seconds since midnight stored as float32: at 50,000 s they step by 3.9 ms, so a 15 ms log
+    reads as sampled every 15.6 ms. Named as a precision problem, not a sampling interval to
+    resample."""
+    db = ranged_db()
+    log = log_of(db, n=400)
+    late = Log((50000.0 + log.time).astype(np.float32).astype(np.float64), log.channels, log.units, path="f32.h5")
+    for resample in (False, True):
+        with pytest.raises(LogError, match=r"f32.h5: the time column has a resolution of 3.906 ms at t = 5000\d.* "
+                                           r"\(single-precision numbers\?\)"):
+            Estimator(db, resample=resample).run(late)
