@@ -198,7 +198,7 @@ class Outputs(NamedTuple):
 
 
 class Work(NamedTuple):
-    """Scratch arrays of :func:`_steps` (:func:`workspace`)."""
+    """Scratch arrays of :func:`step_loop` (:func:`workspace`)."""
     tw: np.ndarray       # interpolated trims
     dw: np.ndarray       # interpolated dynamics block
     t_frac: np.ndarray
@@ -652,86 +652,74 @@ def _sizes(io, model, bias):
         + state_layout(nx, nq, nu, io.S.shape[1], ny)
 
 
-@njit(cache=True, nogil=True, inline="always")
-def _step(io, model, grids, filt, bias, out, w, k, sizes):
-    """Sample k of :func:`filter_loop`'s records (``w`` its workspace, ``sizes`` from
-    :func:`_sizes`), one helper per line of the equations in the module docstring."""
-    nx, nu, ny, nz, nq, ns, nb, oA, oB, oC, oD, oF, oG, oK, oQ, oR, _, _, \
-        ox, oq, ou, osl, oth, ode, oyl, ost, _ = sizes
-    na = nx + nq
-    tu, ty, tz = nx, nx + nu, nx + nu + ny                    # trims: x u y z
-    cy, cz, cs = nx + nu, nx + nu + ny, nx + nu + ny + nz      # channel classes: x u y z s
-    state = filt.state
-    flags = out.flags[k] | _hold_inputs(io, k, state, ou, osl, oth)   # + FLAG_IMPLAUSIBLE of screen()
-    ok = True
-    for j in range(ou, oyl):
-        ok &= state[j] == state[j]
-    if not ok:  # nothing valid yet to predict from
-        out.flags[k] = flags | FLAG_NOT_STARTED
-        _not_started(out, k)
-        return
-    if state[oth] != w.thde[0] or state[ode] != w.thde[1]:   # w.fac: theta^a delta^b
-        w.thde[0], w.thde[1] = state[oth], state[ode]
-        correction_factors(model.ex, state[oth], state[ode], w.fac)
-    f, m, d_out = _interpolate(io, model, grids, filt, w, k, osl, ost, cs)
-    flags |= f
-    bm, b_out = 0, 0
-    if nb > 0:
-        bm, b_out = _bias_predict(bias, w, m, d_out, grids.extrapolate)
-    first = state[ost] == 0.0
-    if first:  # start at trim on the first valid sample
-        for j in range(nx):
-            state[ox + j] = w.tw[j]
-        state[ost] = 1.0
-    if model.online:
-        _online_propagate(model, filt, w, first, m, oA, oQ, nx, na)
-    _time_update(model, state, w, oA, oB, nx, nu, nq, ou, tu)
-    f, n_miss, miss = _predict_measurements(io, model, bias, state, out, w, k, oC, oD, ny, ty, cy, oyl)
-    part, how = _gain_choice(model, w, m, n_miss, miss, ny)
-    flags |= f | part
-    if nb > 0:  # the bias tables learn from complete updates only
-        for c in range(nb):
-            out.bias_hat[k, c] = w.bias[c] * _factor(model, w, cy + bias.chan[c])
-            if n_miss == 0 and b_out == 0 and bias.learn[c]:
-                table_update(bias.vals[c], bias.counts[c], w.b_wts, w.b_rows, bm,
-                             w.res[bias.chan[c]], bias.law, bias.ratio, w.b_frac)
-    update = how != GAIN_NONE
-    if model.online and update:  # the gain from P replaces the interpolated one
-        update = _subset_gain(w, w.P, w.dw, oR, oC, oK, ny, na)
-    elif how == GAIN_OUT:        # the stored gain without the missing sensor
-        _sensor_out_gain(model, w, m, miss, oK, ny, na)
-    elif how == GAIN_SUBSET:     # the present sensors' gain from the steady P and R
-        interp_rows(model.sub_tab, w.d_wts, w.d_rows, m, w.pr)
-        update = _subset_gain(w, w.Ps, w.pr, na * na, oC, oK, ny, na)
-    if not update:
-        flags = (flags & ~(FLAG_PARTIAL | FLAG_HEALTH_HELD)) | FLAG_NO_UPDATE
-    _measurement_update(model, grids, filt, w, update, oK, nx, na, ny, (flags & FLAG_HEALTH_HELD) != 0)
-    _outputs(model, state, out, w, k, oF, oG, nx, nq, nz, tz, cz)
-    out.flags[k] = flags
-
-
 @njit(cache=True, nogil=True, fastmath={"reassoc", "contract"}, _nrt=False)
-def _steps(io, model, grids, filt, bias, out, work):
-    """The step loop of :func:`filter_loop` (same records, plus its workspace ``work``).
+def step_loop(io, model, grids, filt, bias, out, work):
+    """The step loop of :func:`filter_loop` (same records, plus its workspace ``work``), one
+    helper per line of the equations in the module docstring. Also the stream's step
+    (:class:`pwl.streaming.Stream`, one row). The body is written in the loop: as a function of
+    its own inlined by numba (``inline="always"``) it took the kernel's compilation from 50 to
+    80 s, and its own compilation for streaming another 77 s.
 
     Compiled without numba's reference counting (``_nrt=False``): the inlined helpers take
     arrays, and the atomic increments and decrements of their reference counts were a fifth
     of the time per step (perf; 418 -> 360 ns on the demo flight). It also makes any
     allocation in the loop a compile error."""
     sizes = _sizes(io, model, bias)
+    w = work
     for k in range(io.U.shape[0]):
-        _step(io, model, grids, filt, bias, out, work, k, sizes)
+        nx, nu, ny, nz, nq, ns, nb, oA, oB, oC, oD, oF, oG, oK, oQ, oR, _, _, \
+            ox, oq, ou, osl, oth, ode, oyl, ost, _ = sizes
+        na = nx + nq
+        tu, ty, tz = nx, nx + nu, nx + nu + ny                    # trims: x u y z
+        cy, cz, cs = nx + nu, nx + nu + ny, nx + nu + ny + nz      # channel classes: x u y z s
+        state = filt.state
+        flags = out.flags[k] | _hold_inputs(io, k, state, ou, osl, oth)   # + FLAG_IMPLAUSIBLE of screen()
+        ok = True
+        for j in range(ou, oyl):
+            ok &= state[j] == state[j]
+        if not ok:  # nothing valid yet to predict from
+            out.flags[k] = flags | FLAG_NOT_STARTED
+            _not_started(out, k)
+            continue
+        if state[oth] != w.thde[0] or state[ode] != w.thde[1]:   # w.fac: theta^a delta^b
+            w.thde[0], w.thde[1] = state[oth], state[ode]
+            correction_factors(model.ex, state[oth], state[ode], w.fac)
+        f, m, d_out = _interpolate(io, model, grids, filt, w, k, osl, ost, cs)
+        flags |= f
+        bm, b_out = 0, 0
+        if nb > 0:
+            bm, b_out = _bias_predict(bias, w, m, d_out, grids.extrapolate)
+        first = state[ost] == 0.0
+        if first:  # start at trim on the first valid sample
+            for j in range(nx):
+                state[ox + j] = w.tw[j]
+            state[ost] = 1.0
+        if model.online:
+            _online_propagate(model, filt, w, first, m, oA, oQ, nx, na)
+        _time_update(model, state, w, oA, oB, nx, nu, nq, ou, tu)
+        f, n_miss, miss = _predict_measurements(io, model, bias, state, out, w, k, oC, oD, ny, ty, cy, oyl)
+        part, how = _gain_choice(model, w, m, n_miss, miss, ny)
+        flags |= f | part
+        if nb > 0:  # the bias tables learn from complete updates only
+            for c in range(nb):
+                out.bias_hat[k, c] = w.bias[c] * _factor(model, w, cy + bias.chan[c])
+                if n_miss == 0 and b_out == 0 and bias.learn[c]:
+                    table_update(bias.vals[c], bias.counts[c], w.b_wts, w.b_rows, bm,
+                                 w.res[bias.chan[c]], bias.law, bias.ratio, w.b_frac)
+        update = how != GAIN_NONE
+        if model.online and update:  # the gain from P replaces the interpolated one
+            update = _subset_gain(w, w.P, w.dw, oR, oC, oK, ny, na)
+        elif how == GAIN_OUT:        # the stored gain without the missing sensor
+            _sensor_out_gain(model, w, m, miss, oK, ny, na)
+        elif how == GAIN_SUBSET:     # the present sensors' gain from the steady P and R
+            interp_rows(model.sub_tab, w.d_wts, w.d_rows, m, w.pr)
+            update = _subset_gain(w, w.Ps, w.pr, na * na, oC, oK, ny, na)
+        if not update:
+            flags = (flags & ~(FLAG_PARTIAL | FLAG_HEALTH_HELD)) | FLAG_NO_UPDATE
+        _measurement_update(model, grids, filt, w, update, oK, nx, na, ny, (flags & FLAG_HEALTH_HELD) != 0)
+        _outputs(model, state, out, w, k, oF, oG, nx, nq, nz, tz, cz)
+        out.flags[k] = flags
     return io.U.shape[0]
-
-
-@njit(cache=True, nogil=True, fastmath={"reassoc", "contract"}, _nrt=False)
-def one_step(io, model, grids, filt, bias, out, work):
-    """:func:`_steps` for one sample (row 0 of the records), compiled on its own for streaming
-    (:class:`pwl.streaming.Stream`): the loop's set-up (loop-invariant loads and address
-    checks hoisted out of it) cost about 0.6 us per call of :func:`_steps` with one sample.
-    Same flags and compilation options: the same bits."""
-    _step(io, model, grids, filt, bias, out, work, 0, _sizes(io, model, bias))
-    return 1
 
 
 @njit(cache=True, nogil=True)
@@ -780,12 +768,12 @@ def filter_loop(io, model, grids, filt, bias, out):
     (per axis the closer breakpoint) selects the centroid gain (column-major, na x ny); the
     dynamics blocks then hold no K.
     """
-    return _steps(io, model, grids, filt, bias, out, workspace(io.S.shape[1], model, grids, filt, bias))
+    return step_loop(io, model, grids, filt, bias, out, workspace(io.S.shape[1], model, grids, filt, bias))
 
 
 @njit(cache=True, nogil=True)
 def workspace(ns, model, grids, filt, bias):
-    """The :class:`Work` arrays of :func:`_steps` for ns schedule channels. Allocated once per
+    """The :class:`Work` arrays of :func:`step_loop` for ns schedule channels. Allocated once per
     :func:`filter_loop` call, or once per :class:`pwl.streaming.Stream`."""
     nx, nu, ny, nz, nq = model.dims[0], model.dims[1], model.dims[2], model.dims[3], model.dims[4]
     na = nx + nq

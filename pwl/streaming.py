@@ -9,13 +9,13 @@ fed live (an engine monitoring unit, a test cell, a simulation in the loop)::
     ...                                  # in the database's units (stream.units)
     flags = stream.step(row)             # one sample: estimates in stream.x_hat, .z_hat, ...
 
-``step`` calls the same numba step (:func:`pwl.runtime.one_step`, the body of the batch loop
-compiled for one sample) with the same screening before and the same reporting pass after,
-through one compiled function whose only arguments are the stream's state (a numba structure)
-and the sample: its numbers equal a batch run's bit for bit. A step costs about 4 us from
-Python against 0.9 us per sample in batch on the demo database (``pwl bench stream``): numba's
-call from Python (0.5 us) and caches that the Python code between calls has emptied (the
-step's tables and code, about 1.5 us) are most of it; 97 us per sample before. Samples that
+``step`` calls the same numba step loop (:func:`pwl.runtime.step_loop`, on one row) with the same
+screening before and the same reporting pass after, through one compiled function whose only
+arguments are the stream's state (a numba structure) and the sample: its numbers equal a batch
+run's bit for bit. A step costs about 4 us from Python against 0.75 us per sample in batch on
+the demo database (``pwl bench stream``): numba's call from Python (0.5 us) and caches that the
+Python code between calls has emptied (the step's tables and code, about 1.5 us) are most of it;
+97 us per sample before. Samples that
 arrive in packets (a data bus, a file being written) run at batch speed through
 ``Estimator.run_arrays``, which continues from the current state. The stream
 shares the estimator's filter state: ``stream.reset()`` (or ``est.reset()``) restarts both.
@@ -29,7 +29,7 @@ from numba.core import types
 from numba.experimental import structref
 
 from .errors import UsageError
-from .runtime import (FLAG_DYN_OUTSIDE, FLAG_TRIM_OUTSIDE, Inputs, blank_implausible, one_step, report, screen,
+from .runtime import (FLAG_DYN_OUTSIDE, FLAG_TRIM_OUTSIDE, Inputs, step_loop, blank_implausible, report, screen,
                       workspace)
 
 
@@ -68,7 +68,7 @@ def _stream_step(st, row):
     lim, chan_count, q_hat, VT, h_ref, h_lo, h_hi, h_hat, h_held = st.post
     if screen(U, Y, S, TH, DE, lim, chan_count, flags):
         blank_implausible(U, Y, S, TH, DE, lim)
-    one_step(io, model, grids, filt, bias, out, st.work)
+    step_loop(io, model, grids, filt, bias, out, st.work)
     report(q_hat, VT, h_ref, h_lo, h_hi, h_hat, flags, h_held)
     return flags[0]
 

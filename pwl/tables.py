@@ -227,7 +227,7 @@ def table_run(values, counts, bp, off, strides, extrapolate, points, refs, law, 
 def _table_steps(values, counts, bp, off, strides, extrapolate, points, refs, law, ratio, warmup,
                  update_outside, pred, history, P, Sigma, noise_var, work):
     """The loop of :func:`table_run` (same arguments plus its workspace), compiled without numba's
-    reference counting like :func:`pwl.runtime._steps`."""
+    reference counting like :func:`pwl.runtime.step_loop`."""
     idx, frac, wts, rows, cwork = work
     n = points.shape[1]
     keep = history.shape[0] == points.shape[0]
