@@ -7,6 +7,7 @@ HDF5 log in chunks with bounded memory and writes results as it goes.
 from __future__ import annotations
 
 import os
+import warnings
 
 import numpy as np
 
@@ -16,7 +17,7 @@ from .h5io import atomic_h5
 from .logs import Log, LogError, read_header, read_log, read_rows, resample, sample_interval, time_gaps
 from .runtime import (FLAG_DYN_OUTSIDE, FLAG_NOT_STARTED, FLAG_TRIM_OUTSIDE, HEALTH_HOLD_RATIO, MISFIT_SIGMAS,
                       STUCK_AFTER, STUCK_SIGMAS, Bias, Filter, Inputs, Outputs, PackedModel, blank_implausible,
-                      filter_loop, report, screen, state_layout)
+                      filter_loop, report, screen, spike_mask, state_layout)
 from .results import LOG_ATTRS, Result, append_rows, init_result_file
 from .snapshots import SNAPSHOT_OUTPUTS, SnapshotAccumulator, SteadyConfig
 from .errors import PwlError, PwlWarning, UsageError
@@ -25,6 +26,28 @@ from .units import UNITS
 
 OUTPUTS = ("x_hat", "q_hat", "h_hat", "y_hat", "residual", "z_hat")
 BIAS_PREFIX = "bias_"   # bias tables are stored as /tables/bias_<channel>
+
+
+#: a value of an input, a scheduling channel or theta/delta further than SPIKE_FRACTION of its
+#: channel's plausible span from the median of the 2 * SPIKE_WIDTH + 1 samples around it is a
+#: spike (a data-bus dropout written as 0, a bit error): see :func:`spikes`
+SPIKE_WIDTH = 2
+SPIKE_FRACTION = 0.05
+#: what a spike is replaced with: outside every plausible range, so screen() counts and flags it
+#: as implausible (FLAG_IMPLAUSIBLE) and the filter holds that channel's last value
+_SPIKE = np.finfo(np.float64).max
+
+
+def spikes(a: np.ndarray, span: np.ndarray, width: int = SPIKE_WIDTH, fraction: float = SPIKE_FRACTION):
+    """(n, k) bool: the values of ``a`` (n, k) further than ``fraction * span[j]`` (span (k,),
+    the channels' plausible spans; inf: no test) from the median of their centred window of
+    2 * width + 1 samples (cut at the ends; NaN left out). Runs of up to ``width`` samples are
+    caught; a step is not a spike (on each side of it most of the window is on that side).
+    Degraded demo flight with 1 % of its Mach samples 0 (a dropout): Fn RMS 9.8 % and no cruise
+    snapshot without this test, 0.227 % and all three with it."""
+    a = np.ascontiguousarray(a, dtype=np.float64)
+    span = np.ascontiguousarray(np.broadcast_to(np.asarray(span, dtype=np.float64), a.shape[1:]))
+    return spike_mask(a, span, width, fraction, np.empty(a.shape, dtype=np.bool_))
 
 
 class EnvelopeError(PwlError, ValueError):
@@ -429,21 +452,30 @@ class Estimator:
                           PwlWarning, stacklevel=3)
 
     def _split(self, log: Log, rows=slice(None)):
-        """The kernel's input arrays from a log (checks presence and units of every channel;
-        :meth:`absent_sensors` NaN)."""
+        """The kernel's input arrays from a log's ``rows`` (a slice; checks presence and units of
+        every channel; :meth:`absent_sensors` NaN; spikes of the inputs, scheduling channels and
+        theta/delta set outside their plausible range, judged with the samples around the rows:
+        :func:`spikes`)."""
         db, pm = self.db, self.pm
         units = self.channel_units
         absent = self.absent_sensors(log)
-        def take(names):
-            return log.require(names, [units.get(n, "") for n in names], absent, rows)
-        U, Y, S = take(db.names["u"]), take(db.names["y"]), take(pm.schedule_channels)
-        if pm.theta_channel:
-            TD = take([pm.theta_channel, pm.delta_channel])
-            TH = TD[:, 0] / db.correction.T_std
-            DE = TD[:, 1] / db.correction.P_std
-        else:
-            TH = DE = None
-        return U, Y, S, TH, DE
+        a, b, _ = rows.indices(len(log))
+        wide = slice(max(0, a - SPIKE_WIDTH), min(len(log), b + SPIKE_WIDTH))
+        def take(names, r=wide):
+            return log.require(names, [units.get(n, "") for n in names], absent, r)
+        U, S = take(db.names["u"]), take(pm.schedule_channels)
+        TD = take([pm.theta_channel, pm.delta_channel]) / [db.correction.T_std, db.correction.P_std] \
+            if pm.theta_channel else np.ones((U.shape[0], 2))
+        cols = np.hstack([U, S, TD])
+        lim = self._limits[:, np.r_[0:U.shape[1], db.n("y") + np.arange(U.shape[1], cols.shape[1])]]
+        with np.errstate(over="ignore"):
+            span = lim[1] - lim[0]                    # inf for a channel without a range
+        cols[spikes(cols, span)] = _SPIKE
+        cols = cols[a - wide.start: b - wide.start]
+        U, S = np.ascontiguousarray(cols[:, :U.shape[1]]), np.ascontiguousarray(cols[:, U.shape[1]:-2])
+        TH, DE = (np.ascontiguousarray(cols[:, -2]), np.ascontiguousarray(cols[:, -1])) \
+            if pm.theta_channel else (None, None)
+        return U, take(db.names["y"], rows), S, TH, DE
 
     def run(self, log, reset: bool = True) -> Result:
         """Estimates for a whole log.
@@ -613,15 +645,19 @@ class Estimator:
         cols = dict(zip(db.names["u"], U.T)) | dict(zip(db.names["y"], Y.T)) | dict(
             zip(pm.schedule_channels, S.T))
         if pm.theta_channel:
-            cols[pm.theta_channel] = th * db.correction.T_std
-            cols[pm.delta_channel] = de * db.correction.P_std
+            with np.errstate(over="ignore"):    # a spike (pwl.estimator._SPIKE) overflows: inf
+                cols[pm.theta_channel] = th * db.correction.T_std
+                cols[pm.delta_channel] = de * db.correction.P_std
         raw = np.column_stack([cols[c] for c in acc.channels])
         lo = np.array([self.ranges.get(c, (-np.inf, np.inf))[0] for c in acc.channels])
         hi = np.array([self.ranges.get(c, (-np.inf, np.inf))[1] for c in acc.channels])
         with np.errstate(invalid="ignore"):
             raw = np.where((raw >= lo) & (raw <= hi), raw, np.nan)   # implausible: missing
-        with np.errstate(invalid="ignore"):
+        with np.errstate(invalid="ignore", over="ignore"):
             p = db.operating_point(S, th, de)
+            lim = self._limits[:, self._limits.shape[1] - S.shape[1] - 2:]   # S, TH, DE columns
+            sched = np.column_stack([S, th, de])
+            p[~np.all((sched >= lim[0]) & (sched <= lim[1]), axis=1)] = np.nan   # implausible: no point
         outside = (res.flags & (FLAG_TRIM_OUTSIDE | FLAG_DYN_OUTSIDE | FLAG_NOT_STARTED)) != 0
         acc.add(start, res.time, raw, p, {o: res.outputs[o] for o in SNAPSHOT_OUTPUTS}, outside)
 

@@ -888,6 +888,34 @@ def blank_implausible(U, Y, S, TH, DE, lim):
             DE[k] = np.nan
 
 
+@njit(cache=True, nogil=True)
+def spike_mask(a, span, width, fraction, out):
+    """out (n, k) bool: the values of a (n, k) further than fraction * span[j] from the median of
+    their centred window of 2 * width + 1 samples (cut at the ends, NaN left out; the mean of the
+    two middle values of an even count). :func:`pwl.estimator.spikes` documents why."""
+    n, k = a.shape
+    buf = np.empty(2 * width + 1)
+    for j in range(k):
+        tol = fraction * span[j]
+        for i in range(n):
+            m = 0
+            for t in range(max(0, i - width), min(n, i + width + 1)):
+                v = a[t, j]
+                if v == v:          # insertion into the sorted buf[:m]
+                    p = m
+                    while p > 0 and buf[p - 1] > v:
+                        buf[p] = buf[p - 1]
+                        p -= 1
+                    buf[p] = v
+                    m += 1
+            if m == 0:
+                out[i, j] = False
+                continue
+            med = buf[m // 2] if m % 2 else 0.5 * (buf[m // 2 - 1] + buf[m // 2])
+            out[i, j] = abs(a[i, j] - med) > tol
+    return out
+
+
 @njit(cache=True, nogil=True, _nrt=False)
 def report(q_hat, VT, h_ref, h_lo, h_hi, h_out, flags, h_held):
     """The pass after :func:`filter_loop`: health estimates h = h_ref + V_pinv q into h_out (n, nh)
