@@ -577,7 +577,8 @@ class Estimator:
         if not self.resample:
             raise LogError(f"{log.path}: sampled every {dt * 1e3:.6g} ms, the database "
                            f"{os.path.basename(self.db.path)} is discretized for {want * 1e3:.6g} ms; "
-                           f"resample the log (pwl run --resample does it by linear interpolation)")
+                           f"resample the log (pwl run --resample: the filter steps at the database's dt on "
+                           "interpolated inputs and updates on the logged samples)")
         return True
 
     def _log_record(self, log: Log) -> dict:
