@@ -13,6 +13,7 @@ import h5py
 import numpy as np
 import pytest
 
+import pwl
 from pwl.errors import UsageError
 from pwl.estimator import Estimator
 from pwl.fleet.runs import (FAILED, OK, SKIPPED, read_summary, run_many, summary_rows,
@@ -150,7 +151,7 @@ def test_workers_open_the_database_once_per_process(fleet, tmp_path, monkeypatch
 
 
 # ---- resume ------------------------------------------------------------------------------------
-def test_rerun_skips_finished_logs_and_recomputes_changed_ones(fleet, tmp_path):
+def test_rerun_skips_finished_logs_and_recomputes_changed_ones(fleet, tmp_path, monkeypatch):
     logs = [slice_log(tmp_path / "logs" / f"f{i}.h5", start=CRUISE + 100 * i, n=1500) for i in range(4)]
     out = tmp_path / "out"
     assert {r.status for r in run_many(DB, logs, out, workers=1)} == {OK}
@@ -167,6 +168,12 @@ def test_rerun_skips_finished_logs_and_recomputes_changed_ones(fleet, tmp_path):
     want = Estimator(DB).run(logs[1]).z_hat
     with h5py.File(third[1].output, "r") as f:
         np.testing.assert_array_equal(f["z_hat"][()], want)
+    # results of another pwl version are recomputed (it may estimate otherwise)
+    with h5py.File(third[3].output, "r") as f:
+        assert f.attrs["pwl_version"] == pwl.__version__
+    monkeypatch.setattr(pwl, "__version__", "0.0.1")
+    assert [r.status for r in run_many(DB, logs, out, workers=1)] == [OK] * 4
+    monkeypatch.undo()
     # another output selection or thinning is another result; --force recomputes everything
     assert {r.status for r in run_many(DB, logs, out, workers=1, outputs=["h_hat"])} == {OK}
     assert {r.status for r in run_many(DB, logs, out, workers=1, outputs=["h_hat"])} == {SKIPPED}

@@ -163,13 +163,14 @@ def _estimator(job: Job) -> Estimator:
 
 def finished(est: Estimator, job: Job, log_path: str, out_path: str) -> dict | None:
     """The summary row of ``out_path`` when it already holds what ``job`` would write for
-    ``log_path`` (same database digest, mode, log digest, outputs and ``every``; its seal
-    intact); None when it must be computed (missing, unreadable, or made otherwise)."""
+    ``log_path`` (same database digest, mode, log digest, outputs, ``every`` and pwl version: a
+    new version may estimate otherwise; its seal intact); None when it must be computed
+    (missing, unreadable, or made otherwise)."""
     if not os.path.exists(out_path):
         return None
     try:
         want = {"database_digest": est.db.digest, "mode": est.provenance["mode"],
-                "log_digest": file_digest(log_path)}
+                "log_digest": file_digest(log_path), "pwl_version": est.provenance["pwl_version"]}
     except OSError:            # the log is missing: run_file names it
         return None
     want |= selection_record(select_outputs(est.names, job.outputs), job.every)
