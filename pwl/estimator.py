@@ -532,8 +532,10 @@ class Estimator:
         inputs), every channel is NaN inside a gap (inputs held). Updating on interpolated
         sensor values would count each sample many times (a 1 Hz log on the 15 ms demo
         database: health error 0.83 pt instead of 0.27 pt). The result and the channel counts
-        keep the measured rows only: one row per logged sample (or per dt for a faster log)."""
-        rs = resample(log, self.db.dt)
+        keep the measured rows only: one row per logged sample (or per dt for a faster log).
+        Spikes (:func:`spikes`) are judged on the logged samples and left out of the
+        interpolation (missing): interpolated, a 1 Hz dropout would become a 2 s ramp."""
+        rs = resample(self._without_spikes(log), self.db.dt)
         U, Y, S, TH, DE = arrays = self._split(rs.log)
         Y[~rs.measured] = np.nan
         for a in (U, S, TH, DE):
@@ -551,6 +553,22 @@ class Estimator:
 
     #: relative difference between a log's sample interval and the database's dt that is refused
     DT_TOLERANCE = 0.01
+
+    def _without_spikes(self, log: Log) -> Log:
+        """The log with the spikes of its inputs, scheduling channels and theta/delta
+        (:func:`spikes`) NaN."""
+        pm = self.pm
+        U, _, S, TH, DE = self._split(log)
+        cols = [(self.db.names["u"], U), (pm.schedule_channels, S)]
+        if pm.theta_channel:
+            cols.append(([pm.theta_channel, pm.delta_channel], np.column_stack([TH, DE])))
+        chans = dict(log.channels)
+        for names, a in cols:
+            for j, c in enumerate(names):
+                hit = a[:, j] == _SPIKE
+                if hit.any():
+                    chans[c] = np.where(hit, np.nan, chans[c])
+        return Log(log.time, chans, log.units, log.truth, log.truth_units, log.attrs, log.path)
 
     def _check_interval(self, log: Log) -> bool:
         """Whether the log needs resampling: False if it is sampled at the database's dt (within
