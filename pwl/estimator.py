@@ -717,6 +717,21 @@ class Estimator:
             raise EnvelopeError(f"{where}: operating point outside the database grid at sample {i} "
                                 f"(t = {time[i]:g} s) and the database's out-of-range policy is 'error'")
 
+    def _chunks(self, log_path: str):
+        """(log, part): the log (an HDF5 flight log's header, read chunk by chunk; any other
+        format or a log through a channel map: read whole) and ``part(a, b)``, the kernel's
+        arrays (:meth:`_split`) and time of samples a..b."""
+        if self.channel_map is None and log_path.lower().endswith((".h5", ".hdf5")):
+            head = read_header(log_path)
+            def part(a, b):
+                p = read_rows(head, a, b)
+                return self._split(p), p.time
+        else:
+            head = read_log(log_path, channel_map=self.channel_map)
+            def part(a, b):
+                return self._split(head, slice(a, b)), head.time[a:b]
+        return head, part
+
     def run_file(self, log_path, out_path, chunk: int = 1 << 16, outputs=None, every: int = 1,
                  compression: str | None = None) -> dict:
         """Process one log file to one results file, chunk by chunk (bounded memory).
@@ -766,15 +781,7 @@ class Estimator:
         record = selection_record(keep, every)
         units = output_units(self.names, self.db.names, self.db.units)
         self.reset()
-        if self.channel_map is None and log_path.lower().endswith((".h5", ".hdf5")):
-            head = read_header(log_path)            # samples read chunk by chunk below
-            def part(a, b):
-                p = read_rows(head, a, b)
-                return self._split(p), p.time
-        else:
-            head = read_log(log_path, channel_map=self.channel_map)     # other formats: whole
-            def part(a, b):
-                return self._split(head, slice(a, b)), head.time[a:b]
+        head, part = self._chunks(log_path)
         totals = Totals()
         if os.fspath(out_path).lower().endswith(".csv") or self._check_interval(head):
             res = self.run(head if head.channels else log_path, reset=False)
