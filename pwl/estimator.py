@@ -723,9 +723,10 @@ class Estimator:
         arrays (:meth:`_split`) and time of samples a..b."""
         if self.channel_map is None and log_path.lower().endswith((".h5", ".hdf5")):
             head = read_header(log_path)
-            def part(a, b):
-                p = read_rows(head, a, b)
-                return self._split(p), p.time
+            def part(a, b):     # with the samples around the chunk, for its spikes (_split)
+                lo = max(0, a - SPIKE_WIDTH)
+                p = read_rows(head, lo, min(len(head), b + SPIKE_WIDTH))
+                return self._split(p, slice(a - lo, b - lo)), head.time[a:b]
         else:
             head = read_log(log_path, channel_map=self.channel_map)
             def part(a, b):

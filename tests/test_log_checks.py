@@ -436,3 +436,19 @@ def test_spikes_of_a_slow_log_are_judged_before_resampling():
     res = est.run(bad)
     assert fn_rms(res) <= 1.05 * fn_rms(Estimator(db_path, resample=True).run(clean))
     assert 0 < est.missing["Mach"] <= 8
+
+
+def test_a_step_at_an_hdf5_chunk_edge_is_not_a_spike(tmp_path):
+    """An HDF5 log is read a chunk at a time: a step of u0 one sample before a chunk edge is a
+    step in the whole log (most of the window around it after the step), and must be one in the
+    chunked run too; with only the chunk's own samples its window was two old values and it."""
+    import h5py
+    db = ranged_db()
+    log = log_of(db, n=400)
+    log.channels["u0"][136:] += 2.0                # fuel up by 2 of its 0..5 range at 136; edge 137
+    write_log(tmp_path / "log.h5", log)
+    whole = Estimator(db).run(log)
+    assert not np.any(whole.flags & FLAG_IMPLAUSIBLE)
+    Estimator(db).run_file(tmp_path / "log.h5", tmp_path / "res.h5", chunk=137)
+    with h5py.File(tmp_path / "res.h5") as f:
+        np.testing.assert_array_equal(f["flags"][()], whole.flags)
