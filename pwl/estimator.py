@@ -407,6 +407,12 @@ class Estimator:
         big = np.finfo(np.float64).max
         return np.ascontiguousarray(np.clip(np.array(lim, dtype=np.float64).T, -big, big))
 
+    def _limits_of(self, *blocks: int) -> np.ndarray:
+        """(2, k) the :attr:`_limits` columns of the kernel's arrays ``blocks`` (0 U, 1 Y, 2 S,
+        3 TH, 4 DE; the order of :meth:`_columns`), in that order."""
+        start = np.cumsum([0] + [len(c) for c in self._columns()])
+        return self._limits[:, np.concatenate([np.arange(start[b], start[b + 1]) for b in blocks])]
+
     def _sensor_sd(self) -> np.ndarray:
         """(ny,) every sensor's noise standard deviation relative to its value (the database's R
         over its trims, medians over the grid; inf where that is not a positive number)."""
@@ -445,7 +451,6 @@ class Estimator:
     def _warn_absent(self, log: Log) -> None:
         absent = self.absent_sensors(log)
         if absent:
-            import warnings
             warnings.warn(f"{log.path}: no {', '.join(map(repr, absent))} channel: run without "
                           f"{'that sensor' if len(absent) == 1 else 'those sensors'} (missing on "
                           "every sample; a channel map renames a channel logged under another name)",
@@ -467,7 +472,7 @@ class Estimator:
         TD = take([pm.theta_channel, pm.delta_channel]) / [db.correction.T_std, db.correction.P_std] \
             if pm.theta_channel else np.ones((U.shape[0], 2))
         cols = np.hstack([U, S, TD])
-        lim = self._limits[:, np.r_[0:U.shape[1], db.n("y") + np.arange(U.shape[1], cols.shape[1])]]
+        lim = self._limits_of(0, 2, 3, 4)             # U, S, TH, DE
         with np.errstate(over="ignore"):
             span = lim[1] - lim[0]                    # inf for a channel without a range
         cols[spikes(cols, span)] = _SPIKE
@@ -674,7 +679,7 @@ class Estimator:
             raw = np.where((raw >= lo) & (raw <= hi), raw, np.nan)   # implausible: missing
         with np.errstate(invalid="ignore", over="ignore"):
             p = db.operating_point(S, th, de)
-            lim = self._limits[:, self._limits.shape[1] - S.shape[1] - 2:]   # S, TH, DE columns
+            lim = self._limits_of(2, 3, 4)
             sched = np.column_stack([S, th, de])
             p[~np.all((sched >= lim[0]) & (sched <= lim[1]), axis=1)] = np.nan   # implausible: no point
         outside = (res.flags & (FLAG_TRIM_OUTSIDE | FLAG_DYN_OUTSIDE | FLAG_NOT_STARTED)) != 0

@@ -143,7 +143,10 @@ def run_diagnose(args) -> int:
     for e, r in flagged.items():
         what = f"{r.kind} {readable_detail(r.detail, units)}"
         print(f"  {e}: {r.cls} from flight {r.onset}, {what}, confidence {r.confidence:.2f}")
-    rec = [(e, r) for e in engines for r in recoveries([d for d in rows if d.engine == e])]
+    by_engine: dict = {}
+    for d in rows:
+        by_engine.setdefault(d.engine, []).append(d)
+    rec = [(e, r) for e in engines for r in recoveries(by_engine[e])]
     if rec:
         print(f"{len(rec)} recoveries (every efficiency up: a wash or a repair; diagnosed on a new baseline since):")
         for e, r in rec:
