@@ -4,7 +4,7 @@
 fed live (an engine monitoring unit, a test cell, a simulation in the loop)::
 
     est = Estimator("data/turbofan_demo.h5")
-    stream = Stream(est)                 # compiles once per process (~2 s), then reuses
+    stream = Stream(est)                 # compiled once (~15 s), then loaded from the cache
     row = np.empty(len(stream.channels))  # the log channels, in stream.channels order,
     ...                                  # in the database's units (stream.units)
     flags = stream.step(row)             # one sample: estimates in stream.x_hat, .z_hat, ...
@@ -12,9 +12,10 @@ fed live (an engine monitoring unit, a test cell, a simulation in the loop)::
 ``step`` calls the same numba step loop (:func:`pwl.runtime.step_loop`, on one row) with the same
 screening before and the same reporting pass after, through one compiled function whose only
 arguments are the stream's state (a numba structure) and the sample: its numbers equal a batch
-run's bit for bit. A step costs about 4 us from Python against 0.75 us per sample in batch on
-the demo database (``pwl bench stream``): numba's call from Python (0.5 us) and caches that the
-Python code between calls has emptied (the step's tables and code, about 1.5 us) are most of it;
+run's bit for bit. A step costs about 3.5 us from Python against 0.55-0.75 us per sample in
+batch on the demo database (``pwl bench stream``): numba's call from Python (0.45 us), passing
+the kernel's ~90 arrays to the step loop once per sample instead of once per log (~0.8 us) and
+caches that the Python code between calls has emptied are most of it;
 97 us per sample before. Samples that
 arrive in packets (a data bus, a file being written) run at batch speed through
 ``Estimator.run_arrays``, which continues from the current state. The stream
@@ -25,8 +26,9 @@ from __future__ import annotations
 import numba
 import numpy as np
 from numba import njit
-from numba.core import types
+from numba.core import cgutils, types
 from numba.experimental import structref
+from numba.extending import intrinsic
 
 from .errors import UsageError
 from .runtime import (FLAG_DYN_OUTSIDE, FLAG_TRIM_OUTSIDE, Inputs, step_loop, blank_implausible, report, screen,
@@ -47,6 +49,34 @@ class _StreamState(structref.StructRefProxy):
 
 
 structref.define_proxy(_StreamState, _StreamType, ["io", "cols", "records", "work", "post"])
+
+
+def _unowned(context, builder, ty, val):
+    """``val`` of numba type ``ty`` (an array, or tuples of them) with every array's owner
+    (meminfo) and parent set to null."""
+    if isinstance(ty, types.Array):
+        ary = context.make_array(ty)(context, builder, value=val)
+        ary.meminfo = cgutils.get_null_value(ary.meminfo.type)
+        ary.parent = cgutils.get_null_value(ary.parent.type)
+        return ary._getvalue()
+    if isinstance(ty, types.BaseTuple):
+        return context.make_tuple(builder, ty, [_unowned(context, builder, t, builder.extract_value(val, i))
+                                                for i, t in enumerate(ty.types)])
+    return val
+
+
+@intrinsic
+def _borrow(typingctx, x):
+    """The arrays of ``x`` (an array or nested tuples of arrays) as views numba does not
+    reference-count: reading a record of ~90 arrays out of the stream's state cost two atomic
+    operations per array and step (0.5 us of 4). The :class:`Stream` holds the arrays."""
+    return x(x), lambda context, builder, sig, args: _unowned(context, builder, x, args[0])
+
+
+@njit(cache=True)
+def _borrowed_state(io, cols, records, work, post):
+    """The stream's state over arrays the caller keeps alive (:func:`_borrow`)."""
+    return _StreamState(_borrow(io), cols, _borrow(records), _borrow(work), _borrow(post))
 
 
 @njit(cache=True, nogil=True)
@@ -117,7 +147,8 @@ class Stream:
         self._chan_count = np.zeros((2, est._limits.shape[1]), dtype=np.int64)
         post = (est._limits, self._chan_count, self.outputs["q_hat"], est._VT,
                 db.tuner["h_ref"], *est._h_range, self.outputs["h_hat"], est._h_held)
-        self._st = _StreamState(io, tuple(index) + th, records, work, post)
+        self._keep = (io, records, work, post)   # the state's arrays are borrowed from these
+        self._st = _borrowed_state(io, tuple(index) + th, records, work, post)
         self._check = db.policy == "error"
         self._shape = (len(self.channels),)
         # numba's compiled entry for exactly these argument types (compiled or loaded here, not

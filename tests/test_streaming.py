@@ -144,3 +144,21 @@ def test_a_new_stream_has_taken_no_sample():
     np.testing.assert_array_equal(flags, batch.flags)
     for o in batch.outputs:
         np.testing.assert_array_equal(out[o], batch.outputs[o], err_msg=o)
+
+
+def test_a_stream_keeps_the_arrays_its_kernel_reads():
+    """The stream's compiled state reads its arrays without owning them (pwl.streaming._borrow):
+    made and left alone, with the memory of freed arrays reused, it must still equal batch."""
+    import gc
+    db = names_db()
+    U, Y, S, TH, DE = inputs(db, n=60)
+    stream = Stream(Estimator(db))          # nothing else holds the estimator or the workspace
+    rows = rows_of(stream, stream.est, U, Y, S, TH, DE)
+    gc.collect()
+    junk = [np.full(n, 1e300) for n in range(1, 400) for _ in range(3)]   # reuse freed memory
+    out, flags = run_stream(stream, rows)
+    del junk
+    batch = Estimator(db).run_arrays(U, Y, S, TH, DE)
+    np.testing.assert_array_equal(flags, batch.flags)
+    for o in batch.outputs:
+        np.testing.assert_array_equal(out[o], batch.outputs[o], err_msg=o)
