@@ -10,6 +10,11 @@ A small TOML file read with the standard library's tomllib::
     Wf = { column = "FuelFlow_lbs", unit = "lb/s" }
     T2 = { column = "TAT_C", unit = "degC" }
     Nf = "N1"                    # a column name alone: the unit is the log's (or undeclared)
+    Nc = { column = "N2_pct", unit = "rpm", scale = 145.5 }   # N2 in % of 14,550 rpm
+
+A channel's ``scale`` and ``offset`` (numbers) make it column * scale + offset, in the map's
+``unit``: speeds logged in percent of a reference speed, counts, volts. The column's own unit,
+if the log declares one, is then not used.
 
 Every channel the model reads is listed: columns the map does not name (and truth channels) are
 dropped, so a log's other columns (text, status words) never stop a run. A unit is any symbol of
@@ -18,9 +23,12 @@ other layouts a column is a dataset path (``data/FuelFlow``). Errors name the TO
 """
 from __future__ import annotations
 
+import math
 import os
 import tomllib
 from dataclasses import dataclass
+
+import numpy as np
 
 from .logs import Log, LogError, _declared, _missing
 from .units import UNITS, known
@@ -40,8 +48,9 @@ class ChannelMap:
     Parameters
     ----------
     channels : dict
-        Model channel -> (log column, unit): the unit of the column ("" for the log's own
-        declaration); a unit is a symbol of :mod:`pwl.units`.
+        Model channel -> (log column, unit, scale, offset): the channel is column * scale +
+        offset in ``unit`` ("" for the log's own declaration; with a scale or offset other than
+        (1, 0), for none); a unit is a symbol of :mod:`pwl.units`.
     time : str
         The log's time column ("" to find it by name: time, timestamp, datetime or t).
     time_unit : str
@@ -50,7 +59,7 @@ class ChannelMap:
         The TOML file (named in errors).
     """
 
-    channels: dict[str, tuple[str, str]]
+    channels: dict[str, tuple[str, str, float, float]]
     time: str = ""
     time_unit: str = ""
     path: str = "<channel map>"
@@ -94,7 +103,7 @@ class ChannelMap:
             if key not in ("time", "channels"):
                 fail(key, "unknown key (a channel map has [time] and [channels])")
         time = doc.get("time", {})
-        time = _entry({"column": time} if isinstance(time, str) else time, "[time]", ("column", "unit"), fail)
+        time = _entry({"column": time} if isinstance(time, str) else time, "[time]", ("column", "unit"), (), fail)
         if time.get("unit", "") and UNITS.get(known(time["unit"]), ("",))[0] != "time":
             fail("[time] unit", f"{time['unit']!r} is not a unit of time (s, ms, min, h)")
         chans = doc.get("channels")
@@ -103,27 +112,31 @@ class ChannelMap:
         channels = {}
         for name, spec in chans.items():
             key = f"[channels] {name}"
-            e = _entry({"column": spec} if isinstance(spec, str) else spec, key, ("column", "unit"), fail)
+            e = _entry({"column": spec} if isinstance(spec, str) else spec, key, ("column", "unit"),
+                       ("scale", "offset"), fail)
             if not e.get("column"):
                 fail(key, "needs a non-empty column = \"...\" (the log's column)")
             if e.get("unit", "") and known(e["unit"]) is None:
                 fail(f"{key} unit", f"{e['unit']!r} is not a unit pwl knows: {', '.join(UNITS)}")
-            channels[name] = (e["column"], e.get("unit", ""))
+            if e.get("scale", 1.0) == 0.0:
+                fail(f"{key} scale", "must not be 0")
+            channels[name] = (e["column"], e.get("unit", ""), float(e.get("scale", 1.0)), float(e.get("offset", 0.0)))
         return cls(channels, time.get("column", ""), time.get("unit", ""), path)
 
     def columns(self) -> dict[str, str]:
         """The log columns the map reads (the time column aside) -> where the map names them
         (``map.toml: [channels] Wf``), for error messages."""
         out = {}
-        for name, (col, _) in self.channels.items():
+        for name, (col, *_) in self.channels.items():
             out.setdefault(col, f"{self.path}: [channels] {name}")
         return out
 
     def apply(self, log: Log) -> Log:
         """The log with the model's channel names and units.
 
-        Each mapped column is renamed (a column may feed several channels), its unit the map's
-        or else the log's own; every other column and truth channel is dropped. The time stays
+        Each mapped column is renamed (a column may feed several channels) and scaled where the
+        map says, its unit the map's or else the log's own; every other column and truth channel
+        is dropped. The time stays
         as read (``read_log(path, channel_map=...)`` uses the map's [time] column while
         reading).
 
@@ -135,8 +148,8 @@ class ChannelMap:
         Returns
         -------
         Log
-            Channels named as the model's (values unchanged, units declared; the estimator
-            converts them), ``attrs["channel_map"]`` = the map's path.
+            Channels named as the model's (values as logged unless scaled, units declared; the
+            estimator converts them), ``attrs["channel_map"]`` = the map's path.
 
         Raises
         ------
@@ -145,22 +158,29 @@ class ChannelMap:
             (naming the log, the column and the map's key).
         """
         channels, units = {}, {}
-        for name, (col, unit) in self.channels.items():
+        for name, (col, unit, scale, offset) in self.channels.items():
             if col not in log.channels:
                 raise _missing(log.path, col, f"{self.path}: [channels] {name}", sorted(log.channels))
+            if (scale, offset) != (1.0, 0.0):
+                channels[name] = np.asarray(log.channels[col], dtype=np.float64) * scale + offset
+                units[name] = unit
+                continue
             channels[name] = log.channels[col]
             units[name] = _declared(log.units.get(col, ""), unit,
                                     f"{log.path}: column {col!r} ({self.path}: [channels] {name})")
         return Log(log.time, channels, units, attrs={**log.attrs, "channel_map": self.path}, path=log.path)
 
 
-def _entry(value, key: str, allowed, fail) -> dict:
-    """A TOML table of string values with only the ``allowed`` keys."""
+def _entry(value, key: str, strings, numbers, fail) -> dict:
+    """A TOML table with only the keys ``strings`` (string values) and ``numbers`` (finite
+    numbers)."""
     if not isinstance(value, dict):
         fail(key, f"expected a table or a column name, got {type(value).__name__} {value!r}")
     for k, v in value.items():
-        if k not in allowed:
-            fail(f"{key} {k}", f"unknown key (allowed: {', '.join(allowed)})")
-        if not isinstance(v, str):
+        if k not in strings + numbers:
+            fail(f"{key} {k}", f"unknown key (allowed: {', '.join(strings + numbers)})")
+        if k in strings and not isinstance(v, str):
             fail(f"{key} {k}", f"expected a string, got {type(v).__name__} {v!r}")
+        if k in numbers and (isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)):
+            fail(f"{key} {k}", f"expected a finite number, got {type(v).__name__} {v!r}")
     return value

@@ -88,5 +88,7 @@ def converter(have: str, want: str, where: str = ""):
         raise UnitError(f"{where}: unit {have!r} cannot be converted to {want!r} ({unknown!r} is not "
                         f"a unit pwl knows: {', '.join(UNITS)})")
     if a[0] != b[0]:
-        raise UnitError(f"{where}: unit {have!r} ({a[0]}) cannot be converted to {want!r} ({b[0]})")
+        hint = (f"; a channel map scales it: {{ column = ..., unit = {want!r}, scale = <{want} per {have}> }}"
+                if a[0] in ("percent", "dimensionless") else "")
+        raise UnitError(f"{where}: unit {have!r} ({a[0]}) cannot be converted to {want!r} ({b[0]}){hint}")
     return a[1] / b[1], (a[2] - b[2]) / b[1]

@@ -48,11 +48,16 @@ def assert_same_log(a, b, time_tol=0.0):
         np.testing.assert_array_equal(a.channels[k], b.channels[k], err_msg=k)
 
 
-def assert_same_estimates(a, b, rtol=0.0):
+def assert_same_estimates(a, b, rtol=0.0, scaled=False):
+    """Equal flags and outputs, to ``rtol`` of each value (``scaled``: of its column's largest
+    value, for inputs that differ in their last bits: residuals near 0 differ relatively more)."""
     np.testing.assert_array_equal(a.flags, b.flags)
     for o in b.outputs:
         if rtol:
-            np.testing.assert_allclose(a.outputs[o], b.outputs[o], rtol=rtol, atol=0, err_msg=o)
+            for j in range(b.outputs[o].shape[1]):
+                x, y = a.outputs[o][:, j], b.outputs[o][:, j]
+                atol = rtol * np.nanmax(np.abs(y)) if scaled else 0.0
+                np.testing.assert_allclose(x, y, rtol=rtol, atol=atol, err_msg=f"{o}[:, {j}]")
         else:
             np.testing.assert_array_equal(a.outputs[o], b.outputs[o], err_msg=o)
 
@@ -312,6 +317,38 @@ def test_channel_map_reads_a_users_csv_and_hdf5_like_the_native_log(demo, tmp_pa
     assert_same_estimates(est.run(log), res, rtol=1e-9)
 
 
+def test_speeds_in_percent_run_through_a_channel_map_scale(demo, tmp_path):
+    """Engine data often log N1/N2 in percent of a reference speed: a declared '%' is refused
+    with the way out named, and the map's scale gives the native estimates."""
+    est, h5, ref, res = demo
+    full = {"Nf": 4200.0, "Nc": 14600.0}      # rpm at 100 %
+    df = frame(ref)
+    for k, rpm in full.items():
+        df = df.rename(columns={f"{k}[rpm]": f"{k}_pct[%]"})
+        df[f"{k}_pct[%]"] = ref.channels[k] / rpm * 100.0
+    df.to_csv(tmp_path / "pct.csv", index=False)
+    bad = read_log(tmp_path / "pct.csv").channels
+    renamed = read_log(pd.DataFrame({"time[s]": ref.time, "Nf[%]": bad["Nf_pct"]} |
+                                    {f"{k}[{ref.units[k]}]": v for k, v in ref.channels.items() if k != "Nf"}))
+    with pytest.raises(LogError, match=r"channel 'Nf': unit '%' \(percent\) cannot be converted to 'rpm' "
+                                       r"\(rotational speed\); a channel map scales it"):
+        est.run(renamed)
+    others = [f'{k} = "{k}"' for k in ref.channels if k not in full]
+    (tmp_path / "pct.toml").write_text("\n".join(["[channels]"] + others + [
+        f'{k} = {{ column = "{k}_pct", unit = "rpm", scale = {rpm / 100.0} }}' for k, rpm in full.items()]) + "\n")
+    log = read_log(tmp_path / "pct.csv", channel_map=tmp_path / "pct.toml")
+    assert log.units["Nf"] == "rpm" and log.units["Nc"] == "rpm"
+    np.testing.assert_allclose(log.channels["Nc"], ref.channels["Nc"], rtol=1e-15)   # to the last bits
+    assert_same_estimates(est.run(log), res, rtol=1e-9, scaled=True)
+    # an offset too: T2 logged in degC with no unit declared, mapped as K
+    df["T2[K]"] = ref.channels["T2"] - 273.15
+    df.rename(columns={"T2[K]": "TAT"}).to_csv(tmp_path / "c.csv", index=False)
+    (tmp_path / "c.toml").write_text((tmp_path / "pct.toml").read_text().replace(
+        'T2 = "T2"', 'T2 = { column = "TAT", unit = "K", offset = 273.15 }'))
+    assert_same_estimates(est.run(read_log(tmp_path / "c.csv", channel_map=tmp_path / "c.toml")), res, rtol=1e-9,
+                          scaled=True)
+
+
 def test_channel_map_on_parquet_mat_and_dataframes(demo, tmp_path):
     est, h5, ref, _ = demo
     (tmp_path / "m.toml").write_text('[time]\ncolumn = "secs"\nunit = "min"\n[channels]\nFuel = "Wf"\n'
@@ -382,7 +419,11 @@ def test_mat_and_dataframe_errors_name_the_column(tmp_path):
     ('[channels]\nWf = { column = "a", unit = 1 }\n', r"m.toml: \[channels\] Wf unit: expected a string"),
     ('[channels]\nWf = { column = "a", unit = "lbs" }\n',
      r"m.toml: \[channels\] Wf unit: 'lbs' is not a unit pwl knows"),
-    ('[channels]\nWf = { col = "a" }\n', r"m.toml: \[channels\] Wf col: unknown key \(allowed: column, unit\)"),
+    ('[channels]\nWf = { col = "a" }\n', r"m.toml: \[channels\] Wf col: unknown key \(allowed: column, unit, scale, offset\)"),
+    ('[channels]\nWf = { column = "a", scale = 0 }\n', r"m.toml: \[channels\] Wf scale: must not be 0"),
+    ('[channels]\nWf = { column = "a", scale = "2" }\n', r"m.toml: \[channels\] Wf scale: expected a finite number"),
+    ('[channels]\nWf = { column = "a", scale = true }\n', r"m.toml: \[channels\] Wf scale: expected a finite"),
+    ('[channels]\nWf = { column = "a", offset = nan }\n', r"m.toml: \[channels\] Wf offset: expected a finite"),
     ('[channels]\nWf = { unit = "kg/s" }\n', r"m.toml: \[channels\] Wf: needs a non-empty column"),
     ('[channel]\nWf = "a"\n', r"m.toml: channel: unknown key"),
     ('[time]\ncolumn = "t"\n', r"m.toml: \[channels\]: missing or empty"),
