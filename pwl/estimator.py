@@ -22,7 +22,7 @@ from .results import LOG_ATTRS, Result, append_rows, init_result_file
 from .snapshots import SNAPSHOT_OUTPUTS, SnapshotAccumulator, SteadyConfig
 from .errors import PwlError, PwlWarning, UsageError
 from .tables import LAWS, AdaptiveTable, TableError, save_tables
-from .units import UNITS
+from .units import UNITS, likely_units
 
 OUTPUTS = ("x_hat", "q_hat", "h_hat", "y_hat", "residual", "z_hat")
 BIAS_PREFIX = "bias_"   # bias tables are stored as /tables/bias_<channel>
@@ -456,6 +456,32 @@ class Estimator:
                           "every sample; a channel map renames a channel logged under another name)",
                           PwlWarning, stacklevel=3)
 
+    def _warn_units(self, path, arrays, n: int) -> None:
+        """Warn of every channel implausible on at least a tenth of a log's ``n`` samples, with
+        its typical value (the median of its finite values in ``arrays``, the kernel's U, Y, S,
+        TH, DE of the log or of its first chunk) and the units in which that value would be
+        plausible: most often a unit the log does not declare (a temperature in degC, an
+        altitude in ft, a speed in percent)."""
+        corr = self.db.correction
+        std = [1.0, 1.0, 1.0, corr.T_std if corr else 1.0, corr.P_std if corr else 1.0]
+        done = set()
+        for cols, a, s in zip(self._columns(), arrays, std):
+            for j, c in enumerate(cols):
+                k = self.implausible.get(c, 0)
+                if c is None or c in done or k < max(n, 1) / 10:
+                    continue
+                done.add(c)
+                with np.errstate(over="ignore"):     # spikes (_SPIKE) overflow: inf, left out
+                    v = (a[:, j] if a.ndim == 2 else a) * s
+                med = float(np.median(v[np.isfinite(v)])) if np.isfinite(v).any() else np.nan
+                lo, hi = self.ranges.get(c, (-np.inf, np.inf))
+                unit = self.channel_units.get(c, "")
+                guess = likely_units(med, unit, lo, hi)
+                why = (f"logged in {' or '.join(guess)}? Declare the unit (a 'name[unit]' column, a row of "
+                       "units or a channel map)") if guess else "a unit mistake or a failed sensor?"
+                warnings.warn(f"{path}: channel {c!r}: {k} of {n} samples implausible, typically {med:.6g} "
+                              f"where {lo:.6g} to {hi:.6g} {unit} is plausible: {why}", PwlWarning, stacklevel=3)
+
     def _split(self, log: Log, rows=slice(None)):
         """The kernel's input arrays from a log's ``rows`` (a slice; checks presence and units of
         every channel; :meth:`absent_sensors` NaN; spikes of the inputs, scheduling channels and
@@ -524,6 +550,7 @@ class Estimator:
         res.attrs = {k: v for k, v in log.attrs.items() if k in LOG_ATTRS} | {
             "provenance": self.provenance | self._log_record(log)}
         self._check_envelope(res.flags, res.time, log.path)
+        self._warn_units(log.path, arrays, len(res.time))
         acc = self._snapshot_accumulator(dt)
         self._accumulate(acc, 0, res, arrays)
         res.snapshots = acc.snapshots()
@@ -804,6 +831,7 @@ class Estimator:
                                  self.provenance | record, units, compression, rows=-(-n // every))
                 for a in range(0, n, chunk):     # outputs a chunk at a time, whatever the format
                     arrays, time = part(a, min(n, a + chunk))
+                    first = arrays if a == 0 else first
                     res = self.run_arrays(*arrays, time=time)
                     self._check_envelope(res.flags, res.time, log_path)
                     rows = thin_rows(a, len(time), every)
@@ -812,6 +840,7 @@ class Estimator:
                     totals.add(res)
                 for k, v in (totals.attrs() | self._log_record(head)).items():
                     f.attrs[k] = v
+                self._warn_units(log_path, first, n)
                 snaps = acc.snapshots()
                 snaps.save(f.create_group("snapshots"))
         return totals.counts | {"snapshots": len(snaps), "missing_channels": dict(self.missing),

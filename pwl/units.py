@@ -92,3 +92,22 @@ def converter(have: str, want: str, where: str = ""):
                 if a[0] in ("percent", "dimensionless") else "")
         raise UnitError(f"{where}: unit {have!r} ({a[0]}) cannot be converted to {want!r} ({b[0]}){hint}")
     return a[1] / b[1], (a[2] - b[2]) / b[1]
+
+
+def likely_units(value: float, unit: str, lo: float, hi: float) -> list[str]:
+    """The known units of ``unit``'s dimension in which a typical logged ``value`` would fall in
+    the plausible range [lo, hi] of ``unit`` (``30000`` for an altitude in m: ``ft``); for a
+    rotational speed of 0..120, percent of a reference speed. For the warning about a channel
+    whose samples are nearly all implausible: most often a unit not declared."""
+    dim = UNITS.get(known(unit) or "", ("",))[0]
+    if not dim or not np.isfinite(value):
+        return []
+    out, seen = [], set()
+    for u, (d, scale, offset) in UNITS.items():     # one symbol per conversion: degC, not C, °C
+        a, b = converter(u, unit) if d == dim else (np.nan, np.nan)
+        if u != unit and (scale, offset) not in seen and lo <= value * a + b <= hi:
+            out.append(u)
+            seen.add((scale, offset))
+    if dim == "rotational speed" and 0.0 < value <= 120.0:
+        out.append("% of a reference speed (a channel map's scale)")
+    return out

@@ -154,11 +154,17 @@ def test_workers_open_the_database_once_per_process(fleet, tmp_path, monkeypatch
 def test_rerun_skips_finished_logs_and_recomputes_changed_ones(fleet, tmp_path, monkeypatch):
     logs = [slice_log(tmp_path / "logs" / f"f{i}.h5", start=CRUISE + 100 * i, n=1500) for i in range(4)]
     out = tmp_path / "out"
-    assert {r.status for r in run_many(DB, logs, out, workers=1)} == {OK}
+    gappy = read_log(logs[3])
+    gappy.channels["T48"][:10] = np.nan                    # missing samples: named again when skipped
+    write_log(logs[3], gappy)
+    first = run_many(DB, logs, out, workers=1)
+    assert {r.status for r in first} == {OK}
     before = stamps(out)
     again = run_many(DB, logs, out, workers=1)
     assert [r.status for r in again] == [SKIPPED] * 4 and stamps(out) == before
     assert again[0].counts["samples"] == 1500                 # counts of a skipped log: from its file
+    assert again[3].counts["missing_channels"] == {"T48": 10} == {
+        c: v for c, v in first[3].counts["missing_channels"].items() if v}
     slice_log(logs[1], n=1500, start=CRUISE + 100, scale=1.001)  # the log changed: new digest
     with open(again[2].output, "r+b") as fh:                 # a damaged results file
         fh.seek(-100, os.SEEK_END)

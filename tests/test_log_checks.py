@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from conftest import make_database
+from pwl.errors import PwlWarning
 from pwl.estimator import Estimator
 from pwl.h5io import file_digest
 from pwl.logs import Log, LogError, write_log
@@ -97,6 +98,41 @@ def test_undeclared_wrong_units_are_caught_by_the_ranges():
     log.units["Pin"] = "psi/furlong"
     with pytest.raises(LogError, match="channel 'Pin'.*'psi/furlong' is not a unit pwl knows"):
         Estimator(db).run(log)
+
+
+def test_a_channel_mostly_implausible_is_named_with_the_units_it_would_fit():
+    """Undeclared units (an inlet temperature in degC, a pressure in kPa) and a sentinel value
+    (-999 on every sample: a dead channel) are each named in one warning, with the units in
+    which their typical value would be plausible; a clean log gives none."""
+    db = ranged_db()
+    log = log_of(db)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        Estimator(db).run(log)
+    log.channels["Tin"] = log.channels["Tin"] - 273.15
+    log.channels["Pin"] = log.channels["Pin"] / 1e3
+    log.channels["y0"] = np.full(len(log), -999.0)
+    log.units.update(Tin="", Pin="", y0="")
+    with pytest.warns(PwlWarning) as got:
+        Estimator(db).run(log)
+    said = sorted(str(w.message) for w in got if "implausible, typically" in str(w.message))
+    assert len(said) == 3
+    assert "channel 'Pin': 300 of 300 samples implausible" in said[0] and "kPa" in said[0]
+    assert "channel 'Tin'" in said[1] and "logged in degC or degF?" in said[1]
+    assert "channel 'y0'" in said[2] and "typically -999 " in said[2] and "a failed sensor?" in said[2]
+
+
+@pytest.mark.parametrize("value, unit, lo, hi, want", [
+    (15.0, "K", 200.0, 350.0, ["degC", "degF"]),          # 288.15 K; 15 degF = 263.7 K
+    (30000.0, "m", -500.0, 15000.0, ["ft"]),              # 9144 m
+    (101.3, "Pa", 5e4, 1.2e5, ["kPa"]),
+    (72.0, "rpm", 2000.0, 6000.0, ["% of a reference speed (a channel map's scale)"]),
+    (-999.0, "K", 150.0, 1700.0, []),
+    (5.0, "", 0.0, 1.0, []),                              # no unit: nothing to compare
+])
+def test_likely_units(value, unit, lo, hi, want):
+    from pwl.units import likely_units
+    assert likely_units(value, unit, lo, hi) == want
 
 
 def test_sample_interval_must_match_the_database():

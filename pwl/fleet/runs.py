@@ -14,6 +14,7 @@ from __future__ import annotations
 import csv
 import errno
 import importlib.util
+import json
 import os
 import socket
 import sys
@@ -161,11 +162,11 @@ def _estimator(job: Job) -> Estimator:
     return cache[key]
 
 
-def finished(est: Estimator, job: Job, log_path: str, out_path: str) -> dict | None:
-    """The summary row of ``out_path`` when it already holds what ``job`` would write for
-    ``log_path`` (same database digest, mode, log digest, outputs, ``every`` and pwl version: a
-    new version may estimate otherwise; its seal intact); None when it must be computed
-    (missing, unreadable, or made otherwise)."""
+def finished(est: Estimator, job: Job, log_path: str, out_path: str) -> tuple[dict, dict] | None:
+    """The summary row of ``out_path`` and its missing samples per channel, when it already
+    holds what ``job`` would write for ``log_path`` (same database digest, mode, log digest,
+    outputs, ``every`` and pwl version: a new version may estimate otherwise; its seal intact);
+    None when it must be computed (missing, unreadable, or made otherwise)."""
     if not os.path.exists(out_path):
         return None
     try:
@@ -177,7 +178,7 @@ def finished(est: Estimator, job: Job, log_path: str, out_path: str) -> dict | N
     try:
         with open_results(out_path) as f:
             if all(str(attr_str(f, k)) == str(v) for k, v in want.items()):
-                return file_summary(f)
+                return file_summary(f), json.loads(attr_str(f, "missing_channels") or "{}")
     except ResultError:
         pass
     return None
@@ -198,9 +199,11 @@ def _run_log(job: Job, log_path: str, out_path: str) -> LogRun:
     try:
         est = _estimator(job)
         if not job.force and not csv_out:
-            row = finished(est, job, log_path, out_path)
-            if row is not None:
-                return LogRun(log_path, out_path, {k: row[k] for k in COUNT_KEYS}, None, SKIPPED, row)
+            done = finished(est, job, log_path, out_path)
+            if done is not None:
+                row, missing = done
+                counts = {k: row[k] for k in COUNT_KEYS} | {"missing_channels": missing}
+                return LogRun(log_path, out_path, counts, None, SKIPPED, row)
         counts = est.run_file(log_path, out_path, outputs=job.outputs, every=job.every,
                               compression=job.compression)
         if csv_out:
