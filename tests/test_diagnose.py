@@ -169,6 +169,52 @@ def test_noise_covariance_recovers_the_scatter_despite_steps():
     np.testing.assert_allclose(np.sqrt(np.diag(est)), np.sqrt(np.diag(Sigma)), rtol=0.1)
 
 
+def test_noise_covariance_is_not_inflated_by_a_few_noisy_or_intermittent_engines():
+    """A fifth of the engines scatter 4x more (worn sensors) or flip a sensor bias on and off
+    every flight: the fleet's scatter must still be that of the other engines (before, the
+    estimate started from the covariance of all differences and came out 2-3x too large)."""
+    rng = np.random.default_rng(5)
+    A = rng.normal(0, 1, (6, 6))
+    Sigma = (A @ A.T + 6 * np.eye(6)) * 1e-7
+    L = np.linalg.cholesky(Sigma)
+    S = synthetic_signatures()
+    out = []
+    for e in range(40):
+        D = rng.normal(0, 1, (12, 6)) @ L.T + rng.normal(0, 0.01, 6)
+        if e % 10 == 0:
+            D = D + 3.0 * rng.normal(0, 1, (12, 6)) @ L.T         # 4x the scatter... and more
+        elif e % 10 == 1:
+            D[5::2] += 1.0 * S[:, 4]                           # sensor A +1 on every other flight
+        out.append(series(D, S))
+    est = noise_covariance(out, floor=1e-6)
+    np.testing.assert_allclose(np.sqrt(np.diag(est)), np.sqrt(np.diag(Sigma)), rtol=0.15)
+
+
+def test_an_engine_noisier_than_the_fleet_is_tested_against_its_own_scatter():
+    """Engines whose deviations scatter 3x the fleet's Sigma: false alarms stay within the design
+    rate (its own scatter, :func:`own_scatter`, replaces the fleet's); its step is still found."""
+    from pwl.fleet.diagnose import own_scatter
+    rng = np.random.default_rng(6)
+    S = synthetic_signatures()
+    sd = 1e-3
+    Sigma = np.eye(6) * sd ** 2
+    cfg = DiagnosisConfig(alpha=0.02, min_step=0.0, min_rate=0.0)
+    alarms = flights = 0
+    for e in range(60):
+        D = rng.normal(0, 3 * sd, (10, 6)) + rng.normal(0, 0.01, 6)
+        rows = diagnose_engine(series(D, S), Sigma, cfg)
+        alarms += sum(r.detected for r in rows)
+        flights += sum(r.status == "ok" for r in rows)
+    assert alarms <= 0.02 * flights + 3 * np.sqrt(0.02 * flights)
+    # its ratio to the fleet's variance: 9 for these engines, about 1 for the fleet's own
+    ratio = [own_scatter(rng.normal(0, f * sd, (10, 6)), np.eye(6) / sd) for f in (3.0, 1.0) for _ in range(200)]
+    assert np.median(ratio[:200]) == pytest.approx(9.0, rel=0.15)
+    assert np.median(ratio[200:]) == pytest.approx(1.0, rel=0.1) and min(ratio) >= 1.0
+    D[6:] += S[:, 4] * 4.0                                     # sensor A +4: 40 fleet sigmas
+    last = diagnose_engine(series(D, S), Sigma, DiagnosisConfig(eps=0.0))[-1]
+    assert last.detected and last.cls == "sensor:A" and last.onset == 6
+
+
 # ---- scoring ------------------------------------------------------------------------------------
 def write_csv(path, header, rows):
     with open(path, "w", newline="") as fh:

@@ -37,7 +37,8 @@ when nothing changed.
 Sigma, the flight-to-flight scatter of a snapshot's deviations (sensor noise averaged over the
 window plus the model's interpolation error at changing conditions), is estimated from the data:
 for a fleet, robustly from successive flight differences pooled over engines (big changes are
-trimmed); for one engine from its own differences, with a floor. docs/diagnostics.md gives the
+trimmed); for one engine from its own differences, with a floor. An engine that scatters more
+than the fleet is tested against its own scatter (:func:`own_scatter`). docs/diagnostics.md gives the
 equations, the false-alarm design and the benchmark.
 """
 from __future__ import annotations
@@ -260,9 +261,16 @@ def noise_covariance(series: list[EngineSeries], floor: float) -> np.ndarray:
     base = floor ** 2 + (np.nanmedian(se, axis=0) ** 2 if se.size and np.isfinite(se).any() else 0.0)
     base = np.nan_to_num(base, nan=floor ** 2)
     if X.shape[0] >= 4 * m:
-        keep = np.ones(X.shape[0], bool)
+        # start from the channels' median absolute differences, not from the covariance of all
+        # differences: a few noisy or intermittently faulty engines (a fifth of the differences)
+        # inflated that start 4-17x and nothing was then far enough out to be trimmed
+        mad = 1.4826 * np.median(np.abs(X - np.median(X, axis=0)), axis=0)
+        md = np.sum((X / np.maximum(mad, 1e-300)) ** 2, axis=1)
         cut = stats.chi2.ppf(0.999, m)
-        for _ in range(3):
+        keep = md < cut
+        for _ in range(5):
+            if keep.sum() < 2 * m:        # the channels' differences are correlated: keep more
+                keep = md <= np.sort(md)[2 * m - 1]
             C = np.cov(X[keep].T, bias=False) / 2.0 + np.diag(base) * 1e-9
             Ci = np.linalg.inv(2.0 * C)
             md = np.einsum("ij,jk,ik->i", X, Ci, X)
@@ -401,6 +409,24 @@ def _decide(dec, stage, bank, S, t, es, rowsok, n_tests, cfg) -> bool:
     return True
 
 
+#: the quantile of an engine's flight-to-flight differences that gives its own scatter: a step
+#: fault is one large difference, an intermittent one up to half of them
+OWN_QUANTILE = 0.3
+
+
+def own_scatter(D: np.ndarray, Wt: np.ndarray) -> float:
+    """How much more an engine's deviations D (n, m) scatter from flight to flight than the
+    fleet's (whitening Wt): the OWN_QUANTILE quantile of its successive differences' squared
+    whitened norms over that of 2 chi-square(m), at least 1 (1 with fewer than 2 differences).
+    An engine with noisier sensors than the fleet's (a worn harness, a sensor of another make)
+    is then tested against its own noise, not flagged for it."""
+    X = np.diff(D, axis=0) @ Wt.T
+    if X.shape[0] < 2:
+        return 1.0
+    md = np.sum(X ** 2, axis=1) / 2.0
+    return max(1.0, float(np.quantile(md, OWN_QUANTILE) / stats.chi2.ppf(OWN_QUANTILE, D.shape[1])))
+
+
 def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = DiagnosisConfig()) -> list[Decision]:
     """Causal diagnosis of one engine: one :class:`Decision` per flight, using flights 0..k."""
     n, m = es.D.shape
@@ -433,8 +459,8 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
         idx = np.flatnonzero(keep)
         D = es.D[rowsok][:, idx]
         Sbar_all = np.nanmean(es.S[rowsok], axis=0)[idx]
-        Sig = Sigma[np.ix_(idx, idx)]
-        Wt = np.linalg.inv(np.linalg.cholesky(Sig))
+        Wt = np.linalg.inv(np.linalg.cholesky(Sigma[np.ix_(idx, idx)]))
+        Wt /= np.sqrt(own_scatter(D, Wt))
         # hypotheses testable with these channels (a bias of a channel without data is not)
         bank = [h for h in bank_all if np.linalg.norm(Sbar_all[:, h.columns], axis=0).min() > 1e-9]
         t = number[rowsok]
