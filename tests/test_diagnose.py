@@ -118,6 +118,26 @@ def test_a_step_is_detected_isolated_and_sized(cls, theta):
     np.testing.assert_allclose(est, theta, atol=4 * last.magnitude_std + 1e-12, rtol=0.1)
 
 
+def test_a_second_fault_after_a_first_is_found_and_named_with_it():
+    """A fan step at flight 5, then a sensor B bias at flight 10: the second fault is isolated
+    and sized from the first (before, the first's step pulled the one-change fit and the bias
+    came out as a fan "recovery", undetected); the first stays named in ``earlier``."""
+    rng = np.random.default_rng(7)
+    S = synthetic_signatures()
+    sd = 1e-3
+    bank = {h.name: h for h in hypotheses(COLUMNS)}
+    D = rng.normal(0, sd, (14, 6)) + np.outer(np.arange(14), S[:, 0] * -1e-4)   # some wear
+    D[5:] += S[:, bank["fan"].columns] @ np.array([-0.02, -0.01])
+    D[10:] += S[:, 5] * 1.0
+    rows = diagnose_engine(series(D, S), np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0))
+    for r in rows[5:10]:
+        assert r.detected and r.cls == "fan" and r.onset == 5 and r.earlier == "", r
+    for r in rows[10:]:
+        assert r.detected and r.cls == "sensor:B" and r.onset == 10 and r.earlier == "fan@5", r
+        assert r.bias == pytest.approx(1.0, abs=4 * r.magnitude_std * 100 + 0.05)
+    assert not any(r.kind == "recovery" for r in rows)
+
+
 def test_a_drift_is_reported_with_its_rate():
     rng = np.random.default_rng(2)
     S = synthetic_signatures()

@@ -142,7 +142,8 @@ def run_diagnose(args) -> int:
     print(f"{len(flagged)} engines with a fault at their latest flight:")
     for e, r in flagged.items():
         what = f"{r.kind} {readable_detail(r.detail, units)}"
-        print(f"  {e}: {r.cls} from flight {r.onset}, {what}, confidence {r.confidence:.2f}")
+        after = f" (after {', '.join(r.earlier.split())}, still present)" if r.earlier else ""
+        print(f"  {e}: {r.cls} from flight {r.onset}, {what}, confidence {r.confidence:.2f}{after}")
     by_engine: dict = {}
     for d in rows:
         by_engine.setdefault(d.engine, []).append(d)

@@ -312,20 +312,22 @@ class Decision:
     statistic: float = float("nan")
     detail: str = ""
     missing: str = ""
+    earlier: str = ""
 
 
 CSV_FIELDS = ("engine", "flight", "label", "status", "detected", "class", "kind", "onset", "magnitude",
               "magnitude_std", "bias", "confidence", "runner_up", "p_value", "statistic", "detail",
-              "missing", "source")
+              "missing", "earlier", "source")
 
 
-def _fit_changes(D, Wt, S, t, taus, shape, bank, eps, trend=False):
+def _fit_changes(D, Wt, S, t, taus, shape, bank, eps, trend=False, steps=()):
     """For each change point tau and hypothesis: statistic, estimate, its covariance.
 
     D (n, m) deviations at flights t (n,), Wt (m, m) whitening (Wt @ d ~ N(0, I)), S (m, ncol)
     signatures. The engine's own level is a nuisance, and with ``trend`` also a straight line in
     t per channel (the engine's normal wear), so that a step is a jump off the engine's own wear
-    line. The signatures are uncertain by a fraction ``eps`` of the change they describe
+    line; and a step per channel at each flight number of ``steps`` (faults already found: a new
+    change is measured from them, its uncertainty growing by eps of their size). The signatures are uncertain by a fraction ``eps`` of the change they describe
     (linearisation at the database's nodes, fault sizes beyond the linear range), so the
     covariance of the change estimate grows by (eps * change)^2 per channel, the change being
     the observed one (common to every hypothesis, which keeps their statistics comparable).
@@ -335,7 +337,12 @@ def _fit_changes(D, Wt, S, t, taus, shape, bank, eps, trend=False):
     out = []
     n = t.size
     X = np.column_stack([np.ones(n), t - t.mean()]) if trend and n >= 4 else np.ones((n, 1))
+    X = np.column_stack([X] + [(t >= s).astype(float) for s in steps])
     Xp = np.linalg.pinv(X)
+    # a fault found varies from flight to flight by the signatures' uncertainty too: what it
+    # leaves in a new change is eps of its own size per channel
+    known = (eps * (Xp @ D)[X.shape[1] - len(steps):]) ** 2
+    known = known.sum(axis=0) if len(steps) else np.zeros(D.shape[1])
     for tau in taus:
         f = (t >= tau).astype(float) if shape == "step" else np.maximum(0.0, t - tau + 1.0)
         g = f - X @ (Xp @ f)                   # the nuisance (level, wear line) projected out
@@ -344,7 +351,7 @@ def _fit_changes(D, Wt, S, t, taus, shape, bank, eps, trend=False):
             continue
         delta = D.T @ g / g2                   # the observed change (per unit of f), relative
         E = g2 * float(np.sum((Wt @ delta) ** 2))
-        Cw = np.eye(D.shape[1]) / g2 + (Wt * (eps * delta) ** 2) @ Wt.T
+        Cw = np.eye(D.shape[1]) / g2 + (Wt * ((eps * delta) ** 2 + known)) @ Wt.T
         Lw = np.linalg.cholesky(Cw)
         v = np.linalg.solve(Lw, Wt @ delta)    # whitened change estimate, N(0, I) if none
         Sw = np.linalg.solve(Lw, Wt @ S)
@@ -438,6 +445,7 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
     fidx = [f.order[1] for f in es.flights]
     number = np.array(fidx if min(fidx, default=-1) >= 0 and len(set(fidx)) == n else range(n), float)
     first = 0                  # the first flight of the current baseline (moved by a recovery)
+    found: list[tuple[float, str]] = []     # faults found: (onset flight number, class)
     for k in range(n):
         r = es.flights[k]
         dec = Decision(es.engine, int(number[k]), r.label, r.source, "ok")
@@ -472,6 +480,13 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
         # 2. with the wear line as nuisance, wear faster than normal is tested on its own: the
         #    engine's whole-history rate (a ramp from the first flight, level only)
         stage2 = [("ramp", fit(t[:1], "ramp"))] if cfg.wear else []
+        known = [f for f in found if f[0] >= first]
+        if known:   # a new change after the faults found, measured from them; else the last one
+            steps = [f[0] for f in known]
+            new = t[t > steps[-1]]
+            stage1 = [("step", fit(new, "step", trend=cfg.wear, steps=steps)),
+                      ("ramp", fit(new, "ramp", trend=cfg.wear, steps=steps))]
+            stage2 = [("step", fit(np.array([float(steps[-1])]), "step", trend=cfg.wear, steps=steps[:-1]))]
         n_tests = max(1, sum(len(f) for _, f in stage1 + stage2))
         p_all = [float(stats.chi2.sf(f[2], len(bank[f[1]].columns))) * n_tests
                  for _, fits in stage1 + stage2 for f in fits]
@@ -484,6 +499,13 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
                 break
         if dec.kind == "recovery":
             first = int(np.searchsorted(number, dec.onset))
+        dec.earlier = " ".join(f"{c}@{tau:g}" for tau, c in known if tau < dec.onset)
+        # a step found on two flights in a row with the same class and onset is a fault found:
+        # later flights look for a new change after it (a second fault, a repair) measured from it
+        prev = rows[-1] if rows else None
+        if dec.detected and dec.kind == "step" and prev is not None and prev.detected and \
+                (prev.cls, prev.onset) == (dec.cls, dec.onset) and dec.onset not in [f[0] for f in found]:
+            found.append((dec.onset, dec.cls))
         rows.append(dec)
     return rows
 
@@ -545,7 +567,8 @@ def write_diagnosis(rows: list[Decision], path) -> None:
         for r in rows:
             w.writerow([r.engine, r.flight, r.label, r.status, r.detected, r.cls, r.kind, r.onset,
                         _fmt(r.magnitude), _fmt(r.magnitude_std), _fmt(r.bias), _fmt(r.confidence),
-                        r.runner_up, _fmt(r.p_value), _fmt(r.statistic), r.detail, r.missing, r.source])
+                        r.runner_up, _fmt(r.p_value), _fmt(r.statistic), r.detail, r.missing, r.earlier,
+                        r.source])
     os.replace(tmp, path)
 
 

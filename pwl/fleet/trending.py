@@ -132,6 +132,9 @@ class EngineTrend:
                 size += f", bias {d.bias:+.4g} (sensor units)"
             lines.append(f"FAULT: {d.cls} ({d.kind} since flight {d.onset}), {size}, confidence "
                          f"{d.confidence:.2f} (next: {d.runner_up}); {self.detail(d)}")
+            if d.earlier:
+                lines.append(f"  after an earlier fault still present: {', '.join(d.earlier.split())} "
+                             "(class@onset flight)")
         else:
             lines.append(f"no fault detected (p = {d.p_value:.3g})" if np.isfinite(d.p_value) else
                          f"no fault detected ({d.status})")
