@@ -138,6 +138,22 @@ def test_a_second_fault_after_a_first_is_found_and_named_with_it():
     assert not any(r.kind == "recovery" for r in rows)
 
 
+def test_a_component_fault_with_a_sensor_bias_is_one_two_cause_fault():
+    """An HPT loss and a sensor C bias from the same flight: isolated as hpt+sensor:C and sized
+    (without that hypothesis, the closest was a two-component change that was not there)."""
+    rng = np.random.default_rng(8)
+    S = synthetic_signatures()
+    sd = 1e-3
+    D = rng.normal(0, sd, (10, 6))
+    D[6:] += S[:, 2] * -0.02 + S[:, 3] * 0.01 + S[:, 6] * 1.5
+    last = diagnose_engine(series(D, S), np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0))[-1]
+    assert last.detected and last.cls == "hpt+sensor:C" and last.onset == 6
+    est = dict(kv.split("=") for kv in last.detail.split())
+    assert float(est["hpt_eff"]) == pytest.approx(-0.02, abs=4 * last.magnitude_std)
+    assert float(est["hpt_flow"]) == pytest.approx(0.01, abs=0.002)
+    assert float(est["sensor:C"]) == pytest.approx(1.5, abs=0.2)
+
+
 def test_a_drift_is_reported_with_its_rate():
     rng = np.random.default_rng(2)
     S = synthetic_signatures()

@@ -37,7 +37,8 @@ def add_arguments(p):
                    help="isolation cost per free parameter of a hypothesis, in units of the "
                         "chi-square test statistic (default 6)")
     d.add_argument("--no-pairs", action="store_true",
-                   help="do not test two-component changes (default: tested)")
+                   help="do not test changes of two causes: two components, a component and a sensor "
+                        "(default: tested)")
     d.set_defaults(_step=run_diagnose)
 
     c = sub.add_parser("score", help="score a diagnosis CSV against a fleet's truth.csv",

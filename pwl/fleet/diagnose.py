@@ -9,8 +9,8 @@ health parameter and sensor bias (:mod:`pwl.fleet.signatures`). Over the flights
 with a the engine's own level (engine-to-engine scatter and model offset, never needed) and b its
 own wear line (normal wear; ``DiagnosisConfig.wear``), f the shape of the change (a step
 1[j >= tau], or a ramp max(0, j - tau + 1) for a drift starting after the first flights), c one
-hypothesis of a fixed bank (one component's efficiency and flow; two components; one sensor or
-the fuel-flow measurement) and theta its size. After whitening with Sigma and projecting out
+hypothesis of a fixed bank (one component's efficiency and flow; two components; a component
+and a sensor; one sensor or the fuel-flow measurement) and theta its size. After whitening with Sigma and projecting out
 the level, the generalised likelihood ratio of hypothesis c at change point tau is
 T_c = |P_c v|^2 with v the whitened change estimate: chi-square with rank(c) degrees of freedom
 when nothing changed.
@@ -69,7 +69,7 @@ class DiagnosisConfig:
     min_step: smallest change reported (norm of the relative deviation change); min_rate: smallest
     drift reported (per flight, same norm); floor: smallest flight-to-flight scatter assumed per
     channel (relative); eps: relative uncertainty of the signatures; pairs: also test
-    two-component changes, at an extra cost ``pair_cost`` (a combined fault is rarer than a single
+    changes of two causes (two components, a component and a sensor), at an extra cost ``pair_cost`` (a combined fault is rarer than a single
     one, and must explain more than a large single fault's nonlinearity); wear: the engine's own
     wear line is a nuisance of the step tests (normal wear is not a fault)."""
 
@@ -97,7 +97,8 @@ class Hypothesis:
 
 def hypotheses(columns: list[str], pairs: bool = True) -> list[Hypothesis]:
     """The bank: one component (all its health parameters, grouped by the name before the last
-    ``_``: fan_eff, fan_flow -> fan), every pair of components, every sensor bias."""
+    ``_``: fan_eff, fan_flow -> fan), every pair of components, every component with every sensor
+    bias (``hpt+sensor:T30``), every sensor bias."""
     comps: dict[str, list[int]] = {}
     out = []
     for j, c in enumerate(columns):
@@ -109,6 +110,7 @@ def hypotheses(columns: list[str], pairs: bool = True) -> list[Hypothesis]:
     if pairs:
         keys = list(comps)
         bank += [Hypothesis(f"{a}+{b}", comps[a] + comps[b]) for i, a in enumerate(keys) for b in keys[i + 1:]]
+        bank += [Hypothesis(f"{a}+{h.name}", comps[a] + h.columns) for a in keys for h in out]
     return bank + out
 
 
@@ -336,6 +338,10 @@ def _fit_changes(D, Wt, S, t, taus, shape, bank, eps, trend=False, steps=()):
     the change point, since T saturates near 1/eps^2 per channel for a large change at any tau."""
     out = []
     n = t.size
+    groups = []
+    for r in sorted({len(h.columns) for h in bank}):
+        his = [i for i, h in enumerate(bank) if len(h.columns) == r]
+        groups.append((his, np.array([bank[i].columns for i in his])))
     X = np.column_stack([np.ones(n), t - t.mean()]) if trend and n >= 4 else np.ones((n, 1))
     X = np.column_stack([X] + [(t >= s).astype(float) for s in steps])
     Xp = np.linalg.pinv(X)
@@ -355,14 +361,15 @@ def _fit_changes(D, Wt, S, t, taus, shape, bank, eps, trend=False, steps=()):
         Lw = np.linalg.cholesky(Cw)
         v = np.linalg.solve(Lw, Wt @ delta)    # whitened change estimate, N(0, I) if none
         Sw = np.linalg.solve(Lw, Wt @ S)
-        for hi, h in enumerate(bank):
-            A = Sw[:, h.columns]
-            try:
-                Gi = np.linalg.inv(A.T @ A)
-            except np.linalg.LinAlgError:
-                continue
-            th = Gi @ (A.T @ v)
-            out.append((tau, hi, float(v @ A @ th), th, Gi, E))
+        for his, cols in groups:               # the hypotheses of one rank at once
+            A = Sw[:, cols].transpose(1, 0, 2)                 # (hypotheses, m, rank)
+            G = A.transpose(0, 2, 1) @ A
+            ok = np.linalg.cond(G) < 1e12
+            Gi = np.linalg.inv(np.where(ok[:, None, None], G, np.eye(G.shape[1])))
+            b = A.transpose(0, 2, 1) @ v
+            th = (Gi @ b[:, :, None])[:, :, 0]
+            T = np.sum(b * th, axis=1)
+            out += [(tau, hi, float(T[i]), th[i], Gi[i], E) for i, hi in enumerate(his) if ok[i]]
     return out
 
 
@@ -488,12 +495,12 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
                       ("ramp", fit(new, "ramp", trend=cfg.wear, steps=steps))]
             stage2 = [("step", fit(np.array([float(steps[-1])]), "step", trend=cfg.wear, steps=steps[:-1]))]
         n_tests = max(1, sum(len(f) for _, f in stage1 + stage2))
-        p_all = [float(stats.chi2.sf(f[2], len(bank[f[1]].columns))) * n_tests
-                 for _, fits in stage1 + stage2 for f in fits]
-        if not p_all:
+        every = [f for _, fits in stage1 + stage2 for f in fits]
+        if not every:
             rows.append(dec)
             continue
-        dec.p_value = min(min(p_all), 1.0)
+        p_all = stats.chi2.sf([f[2] for f in every], [len(bank[f[1]].columns) for f in every]) * n_tests
+        dec.p_value = min(float(p_all.min()), 1.0)
         for stage in (stage1, stage2):
             if stage and _decide(dec, stage, bank, Sbar_all, t, es, rowsok, n_tests, cfg):
                 break
