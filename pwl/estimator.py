@@ -14,7 +14,8 @@ import numpy as np
 from .database import GainDatabase
 from .grid import Axis, Grid
 from .h5io import atomic_h5
-from .logs import Log, LogError, read_header, read_log, read_rows, resample, sample_interval, time_gaps
+from .logs import (Log, LogError, check_time, read_header, read_log, read_rows, resample, sample_interval,
+                   time_gaps)
 from .runtime import (FLAG_DYN_OUTSIDE, FLAG_NOT_STARTED, FLAG_TRIM_OUTSIDE, HEALTH_HOLD_RATIO, MISFIT_SIGMAS,
                       STUCK_AFTER, STUCK_SIGMAS, Bias, Filter, Inputs, Outputs, PackedModel, blank_implausible,
                       filter_loop, report, screen, spike_mask, state_layout)
@@ -535,7 +536,10 @@ class Estimator:
         EnvelopeError
             The operating point left the grid and the database's policy is ``error``.
         """
-        log = log if isinstance(log, Log) else read_log(log, channel_map=self.channel_map)
+        if isinstance(log, Log):
+            check_time(log.path, log.time)     # as read_log does for files
+        else:
+            log = read_log(log, channel_map=self.channel_map)
         if reset:
             self.reset()
         self._warn_absent(log)

@@ -488,3 +488,18 @@ def test_a_step_at_an_hdf5_chunk_edge_is_not_a_spike(tmp_path):
     Estimator(db).run_file(tmp_path / "log.h5", tmp_path / "res.h5", chunk=137)
     with h5py.File(tmp_path / "res.h5") as f:
         np.testing.assert_array_equal(f["flags"][()], whole.flags)
+
+
+@pytest.mark.parametrize("bad, match", [("repeat", r"mem: time does not increase at sample 40 \("),
+                                        ("nan", r"mem: time is not finite at sample 40 \(nan\)"),
+                                        ("back", r"mem: time does not increase at sample 40 ")])
+def test_a_log_made_in_memory_has_its_time_checked_as_a_file_log(bad, match):
+    """Estimator.run on a Log built in code: a repeated, NaN or backward time was accepted (a
+    NaN time even switched the sample-interval check off); refused as read_log refuses it."""
+    db = ranged_db()
+    log = log_of(db)
+    log.time = log.time.copy()
+    log.time[40] = {"repeat": log.time[39], "nan": np.nan, "back": log.time[10]}[bad]
+    log.path = "mem"
+    with pytest.raises(LogError, match=match):
+        Estimator(db).run(log)
