@@ -293,6 +293,7 @@ class Estimator:
         self.state[nx:nx + nq] = self.q0 if q0 is None else np.asarray(q0, dtype=np.float64)
         self._h_held[:] = self.db.tuner["h_ref"] + self.db.tuner["V_pinv"] @ self.state[nx:nx + nq]
         self.state[oyl + ny:ost + 1] = 0.0     # the stuck detector's counts, not started
+        self.state[ost - ny:ost] = np.inf      # its smallest change of each sensor: none yet
         self.t_idx[:] = 0
         self.d_idx[:] = 0
         self._b_idx[:] = 0

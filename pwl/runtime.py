@@ -66,6 +66,8 @@ FLAG_STUCK = 1024         # a sensor's value has not changed for STUCK_AFTER sec
                           # until its value changes
 STUCK_SIGMAS = 4.0
 STUCK_AFTER = 2.0
+STUCK_ROWS = 7            # the stuck detector's record per sensor in the filter state (_stuck)
+NOISY_CHANGES = 0.9       # a noisy signal changes on at least this fraction of its samples
 
 
 
@@ -262,13 +264,13 @@ def block_layout(nx, nu, ny, nz, nq):
 @njit(cache=True, nogil=True)
 def state_layout(nx, nq, nu, ns, ny):
     """Offsets in the filter state vector [x_abs (nx), q (nq), u_last (nu), s_last (ns),
-    theta_last, delta_last, the stuck detector's sensor record (5 x ny, :func:`_stuck`), started]
+    theta_last, delta_last, the stuck detector's sensor record (7 x ny, :func:`_stuck`), started]
     and its size: (ox, oq, ou, osl, oth, ode, oyl, ost, size)."""
     ou = nx + nq
     osl = ou + nu
     oth = osl + ns
     oyl = oth + 2
-    ost = oyl + 5 * ny
+    ost = oyl + STUCK_ROWS * ny
     return 0, nx, ou, osl, oth, oth + 1, oyl, ost, ost + 1
 
 
@@ -432,19 +434,24 @@ def _stuck(model, state, o, ny, i, yk, s, others_change):
     """Whether sensor i's value yk (present; prediction s, physical) is stuck: the same value
     for model.stuck_n samples or more while most other sensors still change (``others_change``:
     not a whole log at rest, e.g. a noise-free simulation at steady state) and, since it froze,
-    either the prediction moved more than the stuck gate or it was a noisy signal that stopped
-    (before it froze its sample-to-sample change averaged more than half the sensor's noise,
-    model.gate[2], over at least as many samples; a sample-and-hold channel is not noisy); then
-    stuck until the value changes. Sensor record in
-    state[o:]: rows of ny [last value, repeats (inf once stuck), prediction when it came, sum of
-    |change| / |value|, samples], reset to [NaN, 0, 0, 0, 0]."""
+    either the prediction moved more than the stuck gate plus the sensor's resolution (its
+    smallest change seen: a reading quantised coarser than its noise holds a value while the
+    engine moves within one step) or it was a noisy signal that stopped (before it froze it
+    changed on NOISY_CHANGES of its samples by more than half the sensor's noise, model.gate[2],
+    on average, over at least as many samples; a sample-and-hold or coarsely quantised channel
+    is not noisy); then stuck until the value changes. Sensor record in state[o:]: rows of ny
+    [last value, repeats (inf once stuck), prediction when it came, sum of |change| / |value|,
+    samples, changes, smallest |change| / |value|], reset to [NaN, 0, 0, 0, 0, 0, inf]."""
     d = _u(ny)
     j = _u(o + i)          # unsigned indices: no wraparound code (see _u)
     state[j + _u(4) * d] += 1.0
     last = state[j]
     if yk != last:
         if last == last and yk != 0.0:
-            state[j + _u(3) * d] += abs(yk - last) / abs(yk)
+            c = abs(yk - last) / abs(yk)
+            state[j + _u(3) * d] += c
+            state[j + _u(5) * d] += 1.0
+            state[j + _u(6) * d] = min(state[j + _u(6) * d], c)
         state[j] = yk
         state[j + d] = 0.0
         state[j + _u(2) * d] = s
@@ -454,9 +461,11 @@ def _stuck(model, state, o, ny, i, yk, s, others_change):
     if rep < model.stuck_n:
         return False
     before = state[j + _u(4) * d] - rep
+    res = state[j + _u(6) * d]
     if rep == np.inf or (others_change and (
-            abs(s - state[j + _u(2) * d]) > model.gate[1, i] * abs(s)
-            or (before >= model.stuck_n and state[j + _u(3) * d] > 0.5 * model.gate[2, i] * before))):
+            abs(s - state[j + _u(2) * d]) > (model.gate[1, i] + (res if res < np.inf else 0.0)) * abs(s)
+            or (before >= model.stuck_n and state[j + _u(3) * d] > 0.5 * model.gate[2, i] * before
+                and state[j + _u(5) * d] >= NOISY_CHANGES * before))):
         state[j + d] = np.inf
         return True
     return False

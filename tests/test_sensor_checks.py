@@ -125,3 +125,36 @@ def test_sample_and_hold_logging_is_not_stuck_and_spikes_are_left_out():
     assert spike[started].sum() > 400 and np.all(spiked.flags[spike & started] & FLAG_MISFIT)
     rows = log.time >= log.time[0] + 120
     assert abs(_fn_rms(spiked, log, rows) / _fn_rms(clean, log, rows) - 1) <= 0.01
+
+
+def test_coarsely_quantised_sensors_are_not_stuck_and_a_frozen_one_still_is():
+    """Readings quantised to 5 noise sigmas (a quiet sensor logged at a coarse resolution) hold
+    a value for seconds while the engine moves within one step: 8,219 samples were flagged stuck
+    (and health held) on the degraded demo flight; now the stuck gate adds each sensor's
+    resolution and a 'noisy signal that stopped' must have changed on most of its samples.
+    P50 frozen mid-flight in that same quantised log is still left out (95 % of the samples
+    after; a frozen T30 only when the engine moves more than a step: at steady cruise a frozen
+    quantised reading and a working one are alike)."""
+    db_path, log = _demo()
+    est = Estimator(db_path)
+    sd = est._sensor_sd()
+    q = {c: np.round(log.channels[c] / (5 * sd[j] * np.median(np.abs(log.channels[c])))) *
+         (5 * sd[j] * np.median(np.abs(log.channels[c]))) for j, c in enumerate(est.db.names["y"])}
+    res = est.run(_with(log, **q))
+    assert (res.flags & FLAG_STUCK).astype(bool).mean() < 0.01
+    k0 = len(log) // 2
+    p50 = q["P50"].copy()
+    p50[k0:] = p50[k0]
+    frozen = est.run(_with(log, **dict(q, P50=p50)))
+    assert (frozen.flags[k0:] & FLAG_STUCK).astype(bool).mean() > 0.8
+    after = np.arange(len(log)) >= k0
+    assert _fn_rms(frozen, log, after) < 1.5 * _fn_rms(res, log, after)
+
+
+def test_quantised_sensors_are_checked_as_the_reference_filter_does():
+    db, U, Y, S, TH, DE = synthetic()
+    Y = np.round(Y / (np.abs(Y) * 2e-3)) * (np.abs(Y) * 2e-3)   # steps ~20x the noise
+    Y[60:200, 1] = Y[60, 1]
+    est = Estimator(db, stuck_after=10 * db.dt)
+    assert_equals_reference(est.run_arrays(U, Y, S, TH, DE),
+                            ReferenceFilter(db, stuck_after=10 * db.dt).run(U, Y, S, TH, DE))

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..database import OUT_NONE, GainDatabase
+from ..runtime import NOISY_CHANGES
 
 
 def node_weights(axes, point):
@@ -39,9 +40,10 @@ class ReferenceFilter:
     Sensor checks (each sensor's noise std ``sd`` relative to its value: the median over the
     grid of sqrt(R_ii) over the median |y_trim|): a value repeated ``stuck_after`` seconds (in
     samples of db.dt), while more than half the other present sensors changed in this sample, and
-    either the prediction moved more than ``stuck_sigmas`` sd since it froze or its relative
-    sample-to-sample changes had averaged more than sd / 2 over at least as long before, is
-    left out (stuck) until the value changes; then the sensors whose residual exceeds
+    either the prediction moved more than ``stuck_sigmas`` sd plus the sensor's resolution (its
+    smallest relative change so far) since it froze, or its relative sample-to-sample changes
+    had averaged more than sd / 2 over at least as long before and it had changed on
+    NOISY_CHANGES of those samples, is left out (stuck) until the value changes; then the sensors whose residual exceeds
     ``misfit_sigmas`` sd of the prediction are left out too, unless they are half the remaining
     ones or more."""
 
@@ -117,7 +119,7 @@ class ReferenceFilter:
         h_held = db.tuner["h_ref"].copy()
         ny = db.n("y")
         y_last, repeats, froze_at = np.full(ny, np.nan), np.zeros(ny), np.zeros(ny)
-        change_sum, seen = np.zeros(ny), np.zeros(ny)
+        change_sum, seen, changes, resolution = np.zeros(ny), np.zeros(ny), np.zeros(ny), np.full(ny, np.inf)
         for k in range(U.shape[0]):
             th, de = TH[k], DE[k]
             p = np.empty(len(db.schedule))
@@ -162,14 +164,18 @@ class ReferenceFilter:
             with np.errstate(invalid="ignore", divide="ignore"):
                 wander = np.where(moved, np.abs(Y[k] - y_last) / np.abs(Y[k]), 0.0)
             change_sum += wander
+            changes += moved
+            resolution = np.where(moved, np.minimum(resolution, wander), resolution)
             repeats = np.where(same, repeats + 1, np.where(present, 0.0, repeats))   # a gap keeps the run
             froze_at = np.where(present & ~same, pred, froze_at)
             y_last = np.where(present, Y[k], y_last)
             before = seen - repeats
             stuck = same & (repeats >= self.stuck_n) & (
                 (repeats == np.inf) | others_change & (
-                    (np.abs(pred - froze_at) > self.stuck_gate * np.abs(pred))
-                    | (before >= self.stuck_n) & (change_sum > 0.5 * self.sd * before)))
+                    (np.abs(pred - froze_at) > (self.stuck_gate + np.where(np.isinf(resolution), 0.0, resolution))
+                     * np.abs(pred))
+                    | (before >= self.stuck_n) & (change_sum > 0.5 * self.sd * before)
+                    & (changes >= NOISY_CHANGES * before)))
             repeats[stuck] = np.inf       # stuck until the value changes
             have = present & ~stuck
             misfit = have & (np.abs(res) > self.misfit_gate * np.abs(pred))
