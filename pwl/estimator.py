@@ -18,7 +18,7 @@ from .logs import (Log, LogError, check_time, read_header, read_log, read_rows, 
                    time_gaps)
 from .runtime import (FLAG_DYN_OUTSIDE, FLAG_NOT_STARTED, FLAG_TRIM_OUTSIDE, HEALTH_HOLD_RATIO, MISFIT_SIGMAS,
                       STUCK_AFTER, STUCK_SIGMAS, Bias, Filter, Inputs, Outputs, PackedModel, blank_implausible,
-                      filter_loop, report, screen, spike_mask, state_layout)
+                      filter_loop, report, screen, spike_mask, burst_mask, state_layout)
 from .results import LOG_ATTRS, Result, append_rows, init_result_file
 from .snapshots import SNAPSHOT_OUTPUTS, SnapshotAccumulator, SteadyConfig
 from .errors import PwlError, PwlWarning, UsageError
@@ -31,24 +31,32 @@ BIAS_PREFIX = "bias_"   # bias tables are stored as /tables/bias_<channel>
 
 #: a value of an input, a scheduling channel or theta/delta further than SPIKE_FRACTION of its
 #: channel's plausible span from the median of the 2 * SPIKE_WIDTH + 1 samples around it is a
-#: spike (a data-bus dropout written as 0, a bit error): see :func:`spikes`
+#: spike (a data-bus dropout written as 0, a bit error), and so is a run of up to BURST_MAX
+#: values that jumps that far from the value before it and comes back: see :func:`spikes`
 SPIKE_WIDTH = 2
 SPIKE_FRACTION = 0.05
+BURST_MAX = 64
+#: samples either side of a chunk that its spike test reads
+SPIKE_REACH = max(SPIKE_WIDTH, BURST_MAX + 1)
 #: what a spike is replaced with: outside every plausible range, so screen() counts and flags it
 #: as implausible (FLAG_IMPLAUSIBLE) and the filter holds that channel's last value
 _SPIKE = np.finfo(np.float64).max
 
 
-def spikes(a: np.ndarray, span: np.ndarray, width: int = SPIKE_WIDTH, fraction: float = SPIKE_FRACTION):
+def spikes(a: np.ndarray, span: np.ndarray, width: int = SPIKE_WIDTH, fraction: float = SPIKE_FRACTION,
+           longest: int = BURST_MAX):
     """(n, k) bool: the values of ``a`` (n, k) further than ``fraction * span[j]`` (span (k,),
     the channels' plausible spans; inf: no test) from the median of their centred window of
-    2 * width + 1 samples (cut at the ends; NaN left out). Runs of up to ``width`` samples are
-    caught; a step is not a spike (on each side of it most of the window is on that side).
+    2 * width + 1 samples (cut at the ends; NaN left out), and the runs of up to ``longest``
+    values that jump that far from the value before them and come back within it after
+    (:func:`pwl.runtime.burst_mask`). A step is neither (it does not come back).
     Degraded demo flight with 1 % of its Mach samples 0 (a dropout): Fn RMS 9.8 % and no cruise
-    snapshot without this test, 0.227 % and all three with it."""
+    snapshot without the median test, 0.227 % and all three with it; with 0.1 % of its samples
+    starting a run of 3, 10 or 30 zeros: 5.8, 9.5, 16 % without the run test, 0.227 % with it."""
     a = np.ascontiguousarray(a, dtype=np.float64)
     span = np.ascontiguousarray(np.broadcast_to(np.asarray(span, dtype=np.float64), a.shape[1:]))
-    return spike_mask(a, span, width, fraction, np.empty(a.shape, dtype=np.bool_))
+    out = spike_mask(a, span, width, fraction, np.empty(a.shape, dtype=np.bool_))
+    return burst_mask(a, span, longest, fraction, out)
 
 
 class EnvelopeError(PwlError, ValueError):
@@ -493,7 +501,7 @@ class Estimator:
         units = self.channel_units
         absent = self.absent_sensors(log)
         a, b, _ = rows.indices(len(log))
-        wide = slice(max(0, a - SPIKE_WIDTH), min(len(log), b + SPIKE_WIDTH))
+        wide = slice(max(0, a - SPIKE_REACH), min(len(log), b + SPIKE_REACH))
         def take(names, r=wide):
             return log.require(names, [units.get(n, "") for n in names], absent, r)
         U, S = take(db.names["u"]), take(pm.schedule_channels)
@@ -761,8 +769,8 @@ class Estimator:
         if self.channel_map is None and log_path.lower().endswith((".h5", ".hdf5")):
             head = read_header(log_path)
             def part(a, b):     # with the samples around the chunk, for its spikes (_split)
-                lo = max(0, a - SPIKE_WIDTH)
-                p = read_rows(head, lo, min(len(head), b + SPIKE_WIDTH))
+                lo = max(0, a - SPIKE_REACH)
+                p = read_rows(head, lo, min(len(head), b + SPIKE_REACH))
                 return self._split(p, slice(a - lo, b - lo)), head.time[a:b]
         else:
             head = read_log(log_path, channel_map=self.channel_map)

@@ -925,6 +925,34 @@ def spike_mask(a, span, width, fraction, out):
     return out
 
 
+@njit(cache=True, nogil=True)
+def burst_mask(a, span, longest, fraction, out):
+    """out (n, k) bool, or-ed in place: the runs of 1..longest values of a (n, k) that are all
+    further than fraction * span[j] from the value just before the run and are followed by a
+    value back within it (a recorder or bus dropout: zeros or a stale word for a few samples). A
+    step (no return within ``longest``), a NaN inside the run or at either end is left alone.
+    Returns out."""
+    n, k = a.shape
+    for j in range(k):
+        tol = fraction * span[j]
+        i = 1
+        while i < n:
+            ref = a[i - 1, j]
+            if not abs(a[i, j] - ref) > tol:     # no jump (or NaN)
+                i += 1
+                continue
+            e = i + 1
+            while e < n and e - i < longest and abs(a[e, j] - ref) > tol:
+                e += 1
+            if e < n and e - i <= longest and abs(a[e, j] - ref) <= tol:
+                for m in range(i, e):
+                    out[m, j] = True
+                i = e + 1
+            else:
+                i += 1
+    return out
+
+
 @njit(cache=True, nogil=True, _nrt=False)
 def report(q_hat, VT, h_ref, h_lo, h_hi, h_out, flags, h_held):
     """The pass after :func:`filter_loop`: health estimates h = h_ref + V_pinv q into h_out (n, nh)
