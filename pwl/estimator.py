@@ -306,6 +306,7 @@ class Estimator:
         self.d_idx[:] = 0
         self._b_idx[:] = 0
         self.missing = dict.fromkeys(self.input_channels, 0)
+        self.misfit = dict.fromkeys(self.db.names["y"], 0)
         self.implausible = dict.fromkeys(self.input_channels, 0)
 
     @property
@@ -492,6 +493,35 @@ class Estimator:
                 warnings.warn(f"{path}: channel {c!r}: {k} of {n} samples implausible, typically {med:.6g} "
                               f"where {lo:.6g} to {hi:.6g} {unit} is plausible: {why}", PwlWarning, stacklevel=3)
 
+    def _count_misfit(self, res: Result) -> None:
+        """Add a result's samples per sensor whose residual exceeded the misfit gate (the
+        kernel's FLAG_MISFIT test, sensor by sensor) to :attr:`misfit`."""
+        with np.errstate(invalid="ignore"):
+            hit = np.abs(res.outputs["residual"]) > self._model.gate[0] * np.abs(res.outputs["y_hat"])
+        for c, k in zip(self.db.names["y"], hit.sum(axis=0)):
+            self.misfit[c] += int(k)
+
+    def _warn_misfit(self, path, Y, y_hat, n: int) -> None:
+        """Warn of every sensor that misfit on at least a tenth of a log's ``n`` samples, with
+        its typical logged value and prediction (medians over Y and y_hat, (m, ny), the log's or
+        its first chunk's) and the units that would make them agree: a unit mistake inside the
+        plausible range (a T48 in degC read as K) or a failed sensor, left out of the update."""
+        for i, c in enumerate(self.db.names["y"]):
+            k = self.misfit.get(c, 0)
+            if k < max(n, 1) / 10:
+                continue
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)    # all-NaN columns
+                have, want = float(np.nanmedian(Y[:, i])), float(np.nanmedian(y_hat[:, i]))
+            unit = self.channel_units.get(c, "")
+            tol = self._model.gate[0, i] * abs(want)
+            guess = likely_units(have, unit, want - tol, want + tol)
+            why = (f"logged in {' or '.join(guess)}? Declare the unit (a 'name[unit]' column, a row of units or "
+                   "a channel map)") if guess else "a failed or biased sensor, or a unit mistake?"
+            warnings.warn(f"{path}: sensor {c!r} misfit on {k} of {n} samples (typically {have:.6g} {unit} "
+                          f"against {want:.6g} predicted) and was left out of the update: {why}",
+                          PwlWarning, stacklevel=3)
+
     def _split(self, log: Log, rows=slice(None)):
         """The kernel's input arrays from a log's ``rows`` (a slice; checks presence and units of
         every channel; :meth:`absent_sensors` NaN; spikes of the inputs, scheduling channels and
@@ -563,7 +593,9 @@ class Estimator:
         res.attrs = {k: v for k, v in log.attrs.items() if k in LOG_ATTRS} | {
             "provenance": self.provenance | self._log_record(log)}
         self._check_envelope(res.flags, res.time, log.path)
+        self._count_misfit(res)
         self._warn_units(log.path, arrays, len(res.time))
+        self._warn_misfit(log.path, arrays[1], res.outputs["y_hat"], len(res.time))
         acc = self._snapshot_accumulator(dt)
         self._accumulate(acc, 0, res, arrays)
         res.snapshots = acc.snapshots()
@@ -656,6 +688,7 @@ class Estimator:
                    {c: self.channel_units.get(c, "") for c in self.input_channels})),
                "implausible_channels": json.dumps({c: n for c, n in self.implausible.items() if n}),
                "missing_channels": json.dumps({c: n for c, n in self.missing.items() if n}),
+               "misfit_channels": json.dumps({c: n for c, n in self.misfit.items() if n}),
                "absent_channels": json.dumps(self.absent_sensors(log))}
         if "resampled_from" in log.attrs:
             rec["resampled_from_dt"] = float(log.attrs["resampled_from"])
@@ -844,19 +877,23 @@ class Estimator:
                                  self.provenance | record, units, compression, rows=-(-n // every))
                 for a in range(0, n, chunk):     # outputs a chunk at a time, whatever the format
                     arrays, time = part(a, min(n, a + chunk))
-                    first = arrays if a == 0 else first
+
                     res = self.run_arrays(*arrays, time=time)
+                    first = (arrays, res) if a == 0 else first
                     self._check_envelope(res.flags, res.time, log_path)
+                    self._count_misfit(res)
                     rows = thin_rows(a, len(time), every)
                     append_rows(f, res.time[rows], {o: res.outputs[o][rows] for o in keep}, res.flags[rows])
                     self._accumulate(acc, a, res, arrays)
                     totals.add(res)
                 for k, v in (totals.attrs() | self._log_record(head)).items():
                     f.attrs[k] = v
-                self._warn_units(log_path, first, n)
+                self._warn_units(log_path, first[0], n)
+                self._warn_misfit(log_path, first[0][1], first[1].outputs["y_hat"], n)
                 snaps = acc.snapshots()
                 snaps.save(f.create_group("snapshots"))
         return totals.counts | {"snapshots": len(snaps), "missing_channels": dict(self.missing),
+                                "misfit_channels": dict(self.misfit),
                                 "residual_rms": dict(zip(totals.sensors, totals.residual_rms().tolist()))}
 
 

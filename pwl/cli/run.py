@@ -46,10 +46,11 @@ def add_arguments(p):
                         "than 1 %% (inputs interpolated linearly; the filter updates on the logged samples only "
                         "and reports one row per sample; default: such logs are refused)")
     p.add_argument("--min-updated", type=float, default=MIN_UPDATED, metavar="FRACTION",
-                   help="exit status 1 when a log has a measurement update, or trusted estimates, at "
-                        "fewer than this fraction of its samples (default %(default)s): such a log's "
-                        "estimates are mostly open-loop predictions, or with implausible health, or the "
-                        "model explains none of its sensors")
+                   help="exit status 1 when a log has a measurement update, trusted estimates, or health "
+                        "estimates (not held), at fewer than this fraction of its samples (default "
+                        "%(default)s): such a log's estimates are mostly open-loop predictions, or with "
+                        "implausible health, or the model explains none of its sensors, or a sensor the "
+                        "health estimates need was missing")
     p.add_argument("--mode", choices=MODES, default=None,
                    help="how the update gain is made: steady (default) the database's steady-state "
                         "gains; untuned: the same with the tuners held at 0; online: the full Kalman "
@@ -190,7 +191,8 @@ def run(args) -> int:
                                       " (CSV: Parquet needs pandas and pyarrow)"))
     if failed or short:
         print(f"pwl run: {len(failed)} log(s) failed, {len(short)} with too few estimates "
-              f"(fewer than {args.min_updated:.0%} of samples updated or trusted); see above", file=sys.stderr)
+              f"(fewer than {args.min_updated:.0%} of samples updated, trusted or with health estimated); see above",
+              file=sys.stderr)
         return EXIT_FINDINGS
     return 0
 
@@ -255,20 +257,27 @@ def describe(counts: dict) -> str:
 def too_few(counts: dict, min_updated: float) -> str:
     """Why a log's estimates cannot be trusted -- fewer than ``min_updated`` of its samples had a
     measurement update, or were trusted (:func:`pwl.results.trusted`: plausible health, a model
-    that explains the sensors) -- naming the channels that were
-    missing or implausible and what else was flagged; "" if fine."""
+    that explains the sensors), or had their health estimated (not held) -- naming the channels
+    that were missing or implausible, or misfit, and what else was flagged; "" if fine."""
     n = counts["samples"]
     updated = counts.get("updated", n)
     good = counts.get("trusted", updated)      # results files written before "trusted"
-    if n and good >= min_updated * n:
+    held = counts.get("health_held", 0)
+    if n and good >= min_updated * n and n - held >= min_updated * n:
         return ""
-    missing = sorted(((v, c) for c, v in (counts.get("missing_channels") or {}).items() if v), reverse=True)
-    chans = ", ".join(f"{c} {v / max(n, 1):.0%}" for v, c in missing[:4])
+    def worst(key):    # the four channels with the most samples under ``key``, as percentages
+        top = sorted(((v, c) for c, v in (counts.get(key) or {}).items() if v), reverse=True)[:4]
+        return ", ".join(f"{c} {v / max(n, 1):.0%}" for v, c in top)
+    chans = [f"{label}: {worst(key)}" for key, label in (("missing_channels", "missing or implausible"),
+                                                          ("misfit_channels", "misfit")) if worst(key)]
     if updated < min_updated * n or not n:
         why = f"{updated} of {n} samples had a measurement update"
-    else:
+    elif good < min_updated * n:
         flagged = ", ".join(f"{label} {counts[k] / n:.0%}" for k, label in (
             ("misfit", "misfit"), ("health_implausible", "implausible health"),
             ("trim_outside", "outside the trim grid")) if counts.get(k))
         why = f"{good} of {n} samples trusted ({flagged}: a unit mistake, a failed sensor or the wrong database?)"
-    return why + (f"; missing or implausible: {chans}" if chans else "")
+    else:
+        why = (f"health held on {held} of {n} samples (not estimated: a sensor the health estimates need was "
+               "missing, stuck or misfitting)")
+    return why + "".join(f"; {c}" for c in chans)

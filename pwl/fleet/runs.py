@@ -163,7 +163,7 @@ def _estimator(job: Job) -> Estimator:
 
 
 def finished(est: Estimator, job: Job, log_path: str, out_path: str) -> tuple[dict, dict] | None:
-    """The summary row of ``out_path`` and its missing samples per channel, when it already
+    """The summary row of ``out_path`` and its missing and misfit samples per channel, when it already
     holds what ``job`` would write for ``log_path`` (same database digest, mode, log digest,
     outputs, ``every`` and pwl version: a new version may estimate otherwise; its seal intact);
     None when it must be computed (missing, unreadable, or made otherwise)."""
@@ -178,7 +178,8 @@ def finished(est: Estimator, job: Job, log_path: str, out_path: str) -> tuple[di
     try:
         with open_results(out_path) as f:
             if all(str(attr_str(f, k)) == str(v) for k, v in want.items()):
-                return file_summary(f), json.loads(attr_str(f, "missing_channels") or "{}")
+                return file_summary(f), {k: json.loads(attr_str(f, k) or "{}") for k in ("missing_channels",
+                                                                                       "misfit_channels")}
     except ResultError:
         pass
     return None
@@ -201,8 +202,8 @@ def _run_log(job: Job, log_path: str, out_path: str) -> LogRun:
         if not job.force and not csv_out:
             done = finished(est, job, log_path, out_path)
             if done is not None:
-                row, missing = done
-                counts = {k: row[k] for k in COUNT_KEYS} | {"missing_channels": missing}
+                row, channels = done
+                counts = {k: row[k] for k in COUNT_KEYS} | channels
                 return LogRun(log_path, out_path, counts, None, SKIPPED, row)
         counts = est.run_file(log_path, out_path, outputs=job.outputs, every=job.every,
                               compression=job.compression)
