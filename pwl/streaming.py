@@ -12,7 +12,9 @@ fed live (an engine monitoring unit, a test cell, a simulation in the loop)::
 ``step`` calls the same numba step loop (:func:`pwl.runtime.step_loop`, on one row) with the same
 screening before and the same reporting pass after, through one compiled function whose only
 arguments are the stream's state (a numba structure) and the sample: its numbers equal a batch
-run's bit for bit. A step costs about 3.5 us from Python against 0.55-0.75 us per sample in
+run's bit for bit (but where a scheduling channel or theta/delta jumps by more than 5 % of its
+span in one sample: unable to see ahead, the stream holds the channel until it comes back or for
+64 samples, :func:`_hold_jumps`, where the batch holds only the runs that do come back). A step costs about 3.5 us from Python against 0.55-0.75 us per sample in
 batch on the demo database (``pwl bench stream``): numba's call from Python (0.45 us), passing
 the kernel's ~90 arrays to the step loop once per sample instead of once per log (~0.8 us) and
 caches that the Python code between calls has emptied are most of it;
@@ -31,8 +33,9 @@ from numba.experimental import structref
 from numba.extending import intrinsic
 
 from .errors import UsageError
+from .estimator import _SPIKE as _HELD, BURST_MAX, SPIKE_FRACTION
 from .runtime import (FLAG_DYN_OUTSIDE, FLAG_TRIM_OUTSIDE, Inputs, step_loop, blank_implausible, report, screen,
-                      workspace)
+                      state_layout, workspace)
 
 
 _F8 = np.dtype(np.float64)
@@ -48,7 +51,7 @@ class _StreamState(structref.StructRefProxy):
     """Everything one step needs, in one numba structure (one argument to unbox per call)."""
 
 
-structref.define_proxy(_StreamState, _StreamType, ["io", "cols", "records", "work", "post"])
+structref.define_proxy(_StreamState, _StreamType, ["io", "cols", "records", "work", "post", "jump"])
 
 
 def _unowned(context, builder, ty, val):
@@ -74,9 +77,32 @@ def _borrow(typingctx, x):
 
 
 @njit(cache=True)
-def _borrowed_state(io, cols, records, work, post):
+def _borrowed_state(io, cols, records, work, post, jump):
     """The stream's state over arrays the caller keeps alive (:func:`_borrow`)."""
-    return _StreamState(_borrow(io), cols, _borrow(records), _borrow(work), _borrow(post))
+    return _StreamState(_borrow(io), cols, _borrow(records), _borrow(work), _borrow(post), _borrow(jump))
+
+
+@njit(cache=True, nogil=True)
+def _hold_jumps(S, TH, DE, state, osl, jump, longest):
+    """The stream's dropout test, causal: a value of a scheduling channel or theta/delta (S (1,
+    ns), TH, DE (1,)) further than jump[1, c] from the channel's last value the filter took (the
+    filter state's, from ``osl`` on: state_layout) is set to _HELD (implausible: the filter holds
+    the channel) for up to ``longest`` samples in a row (counted in jump[0, c]); the next one is
+    taken (a step). A batch run, which sees ahead, holds only the runs that come back
+    (:func:`pwl.runtime.burst_mask`)."""
+    ns = S.shape[1]
+    for c in range(ns + 2):
+        v = S[0, c] if c < ns else (TH[0] if c == ns else DE[0])
+        if abs(v - state[osl + c]) > jump[1, c] and jump[0, c] < longest:   # NaN either side: no test
+            jump[0, c] += 1.0
+            if c < ns:
+                S[0, c] = _HELD
+            elif c == ns:
+                TH[0] = _HELD
+            else:
+                DE[0] = _HELD
+        else:
+            jump[0, c] = 0.0
 
 
 @njit(cache=True, nogil=True)
@@ -86,7 +112,7 @@ def _stream_step(st, row):
     U, Y, S, TH, DE = io
     model, grids, filt, bias, out = st.records
     flags = out.flags
-    iu, iy, i_s, ith, ide, t_std, p_std = st.cols
+    iu, iy, i_s, ith, ide, t_std, p_std, osl = st.cols
     for j in range(iu.shape[0]):
         U[0, j] = row[iu[j]]
     for j in range(iy.shape[0]):
@@ -95,6 +121,7 @@ def _stream_step(st, row):
         S[0, j] = row[i_s[j]]
     TH[0] = row[ith] / t_std if ith >= 0 else 1.0
     DE[0] = row[ide] / p_std if ide >= 0 else 1.0
+    _hold_jumps(S, TH, DE, filt.state, osl, st.jump, BURST_MAX)
     lim, chan_count, q_hat, VT, h_ref, h_lo, h_hi, h_hat, h_held = st.post
     if screen(U, Y, S, TH, DE, lim, chan_count, flags):
         blank_implausible(U, Y, S, TH, DE, lim)
@@ -107,7 +134,7 @@ class Stream:
     """One-sample-at-a-time estimation with an :class:`pwl.Estimator`: its database, mode, bias
     tables and filter state (shared: ``stream.reset()`` and ``est.reset()`` restart both).
     Configure the estimator (bias tables, learning) before making its stream. Numbers equal a
-    batch run's bit for bit.
+    batch run's bit for bit, but at a jump of a scheduling channel (module docstring).
 
     Parameters
     ----------
@@ -147,8 +174,13 @@ class Stream:
         self._chan_count = np.zeros((2, est._limits.shape[1]), dtype=np.int64)
         post = (est._limits, self._chan_count, self.outputs["q_hat"], est._VT,
                 db.tuner["h_ref"], *est._h_range, self.outputs["h_hat"], est._h_held)
-        self._keep = (io, records, work, post)   # the state's arrays are borrowed from these
-        self._st = _borrowed_state(io, tuple(index) + th, records, work, post)
+        with np.errstate(over="ignore", invalid="ignore"):
+            span = np.diff(est._limits_of(2, 3, 4), axis=0)[0]    # scheduling, theta, delta (inf: none)
+        self._jump = np.vstack([np.zeros(ns + 2), SPIKE_FRACTION * span])
+        nx, _, _, _, nq, _ = est.pm.dims
+        osl = state_layout(nx, nq, nu, ns, ny)[3]          # the filter state's last scheduling values
+        self._keep = (io, records, work, post, self._jump)   # the state's arrays are borrowed from these
+        self._st = _borrowed_state(io, tuple(index) + th + (osl,), records, work, post, self._jump)
         self._check = db.policy == "error"
         self._shape = (len(self.channels),)
         # numba's compiled entry for exactly these argument types (compiled or loaded here, not

@@ -190,7 +190,8 @@ def test_every_option_has_help_stating_its_default(command):
 
 def test_pwl_run_says_which_sensor_a_log_lacks_in_one_line(tmp_path, capsys):
     """A log without P15 runs (P15 dead on every sample); ``pwl run`` says so on one line and
-    leaves Python's warning display as it was."""
+    leaves Python's warning display as it was. The health estimates need P15: held on most
+    samples, the log counts as one with too few estimates (exit 1, saying why)."""
     import warnings
 
     from pwl.logs import Log, read_log, write_log
@@ -199,8 +200,9 @@ def test_pwl_run_says_which_sensor_a_log_lacks_in_one_line(tmp_path, capsys):
     write_log(tmp_path / "nop15.h5", Log(log.time[:4000], {c: log.channels[c][:4000] for c in keep},
                                          {c: log.units[c] for c in keep}))
     shown = warnings.showwarning
-    assert main(["run", DB, str(tmp_path / "nop15.h5"), "-o", str(tmp_path / "out"), "-j", "1"]) == 0
+    assert main(["run", DB, str(tmp_path / "nop15.h5"), "-o", str(tmp_path / "out"), "-j", "1"]) == 1
     cap = capsys.readouterr()
+    assert "TOO FEW ESTIMATES: health held on " in cap.err and "missing or implausible: P15 100%" in cap.err
     assert "pwl: warning: " + str(tmp_path / "nop15.h5") + ": no 'P15' channel: run without that sensor" in cap.err
     assert "4000 partial update" in cap.out + cap.err
     assert warnings.showwarning is shown
