@@ -16,8 +16,8 @@ from .grid import Axis, Grid
 from .h5io import atomic_h5
 from .logs import (Log, LogError, check_time, read_header, read_log, read_rows, resample, sample_interval,
                    time_gaps)
-from .runtime import (FLAG_DYN_OUTSIDE, FLAG_NOT_STARTED, FLAG_TRIM_OUTSIDE, HEALTH_HOLD_RATIO, MISFIT_SIGMAS,
-                      STUCK_AFTER, STUCK_SIGMAS, Bias, Filter, Inputs, Outputs, PackedModel, blank_implausible,
+from .runtime import (FLAG_DYN_OUTSIDE, FLAG_HEALTH_HELD, FLAG_NOT_STARTED, FLAG_TRIM_OUTSIDE, HEALTH_HOLD_RATIO,
+                      MISFIT_SIGMAS, STUCK_AFTER, STUCK_SIGMAS, Bias, Filter, Inputs, Outputs, PackedModel, blank_implausible,
                       filter_loop, report, screen, spike_mask, burst_mask, state_layout)
 from .results import LOG_ATTRS, Result, append_rows, init_result_file
 from .snapshots import SNAPSHOT_OUTPUTS, SnapshotAccumulator, SteadyConfig
@@ -756,7 +756,11 @@ class Estimator:
             sched = np.column_stack([S, th, de])
             p[~np.all((sched >= lim[0]) & (sched <= lim[1]), axis=1)] = np.nan   # implausible: no point
         outside = (res.flags & (FLAG_TRIM_OUTSIDE | FLAG_DYN_OUTSIDE | FLAG_NOT_STARTED)) != 0
-        acc.add(start, res.time, raw, p, {o: res.outputs[o] for o in SNAPSHOT_OUTPUTS}, outside)
+        outs = {o: res.outputs[o] for o in SNAPSHOT_OUTPUTS}
+        held = (res.flags & FLAG_HEALTH_HELD) != 0     # not estimated there: no snapshot value
+        for o in ("h_hat", "q_hat"):
+            outs[o] = np.where(held[:, None], np.nan, outs[o]) if held.any() else outs[o]
+        acc.add(start, res.time, raw, p, outs, outside)
 
     def step(self, sample: dict) -> dict:
         """One sample through the filter, continuing from the current state.

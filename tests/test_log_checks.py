@@ -606,3 +606,23 @@ def test_a_sensor_in_another_unit_inside_its_range_is_named_and_its_health_failu
     assert code == 1 and "sensor 'T30' misfit" in err and "logged in degC?" in err
     line = err[err.index("TOO FEW"):].splitlines()[0]
     assert "health held on" in line and "misfit: T30 100%" in line
+
+
+def test_a_snapshot_has_no_health_where_it_was_held():
+    """Without Ps30 the health estimates are held at h_ref all flight: the steady snapshots (what
+    pwl trend, the fleet summary and diagnosis show) took h_ref as the engine's health, a new
+    engine's; now NaN (not estimated). With every sensor they are the filter's estimates."""
+    from pwl.demo_data import demo_paths
+    from pwl.logs import read_log
+
+    db_path, logs = demo_paths()
+    log = read_log([p for p in logs if "degraded" in p][0])
+    keep = [c for c in log.channels if c != "Ps30"]
+    res = Estimator(db_path).run(Log(log.time, {c: log.channels[c] for c in keep}, {c: log.units[c] for c in keep}))
+    assert len(res.snapshots) == 3 and np.isnan(res.snapshots.outputs["h_hat"]).all()
+    assert np.isnan(res.snapshots.outputs["q_hat"]).all() and np.isfinite(res.snapshots.outputs["z_hat"]).all()
+    full = Estimator(db_path).run(log)
+    w = full.snapshots
+    for i in range(len(w)):
+        rows = (full.time >= w.t0[i]) & (full.time <= w.t1[i])
+        np.testing.assert_allclose(w.outputs["h_hat"][i], full.outputs["h_hat"][rows].mean(axis=0), rtol=1e-10)
