@@ -213,3 +213,30 @@ def test_tiny_fleet_simulate_run_diagnose_score(tmp_path, capsys):
     assert "flight_006.estimates.h5: unreadable results file" in capsys.readouterr().err
     with open(diag, newline="") as fh:
         assert len(list(csv.DictReader(fh))) == 36
+
+
+def test_engines_named_from_file_names_and_mixed_engines_warned(scenario, tmp_path, capsys):
+    """Logs without an engine attribute in one flat folder were diagnosed as one engine, the
+    folder. --engine-pattern names each from its file name (the same decisions as from the
+    attribute); an engine whose flights repeat flight indices is named in a warning."""
+    import dataclasses
+    import shutil
+
+    from pwl.fleet.diagnose import DiagnosisError, mixed_engines
+    flat = tmp_path / "flat"
+    flat.mkdir()
+    for r in scenario["records"]:
+        if r.engine in ("ESN001", "ESN005"):
+            shutil.copy(r.source, flat / f"{r.engine}_{os.path.basename(r.source)}")
+    with pytest.raises(DiagnosisError, match=r"the engine pattern 'XYZ\[0-9\]' does not match its name"):
+        read_flight(next(flat.iterdir()), r"XYZ[0-9]")
+    assert {read_flight(f, r"(ESN\d+)_").engine for f in flat.iterdir()} == {"ESN001", "ESN005"}
+    assert main(["fleet", "diagnose", str(flat), "--engine-pattern", r"(ESN\d+)_", "-o", str(tmp_path / "d.csv")]) == 0
+    got = {(r["engine"], r["flight"]): (r["detected"], r["class"]) for r in csv.DictReader(open(tmp_path / "d.csv"))}
+    for e in ("ESN001", "ESN005"):
+        for d in scenario["rows"][e]:
+            assert got[(e, str(d.flight))] == (str(d.detected), d.cls)
+    assert "repeat" not in capsys.readouterr().err
+    one = [dataclasses.replace(r, engine="flat") for r in scenario["records"] if r.engine in ("ESN001", "ESN005")]
+    (line,) = mixed_engines(one)
+    assert line.startswith(f"engine flat: {FLIGHTS} of its {2 * FLIGHTS} flights repeat another's flight time")

@@ -8,6 +8,7 @@
 import glob
 import json
 import os
+import re
 import sys
 
 from .output import check_output, plot_or_note
@@ -36,6 +37,10 @@ def add_arguments(p):
     d.add_argument("--kappa", type=float, default=None,
                    help="isolation cost per free parameter of a hypothesis, in units of the "
                         "chi-square test statistic (default 6)")
+    d.add_argument("--engine-pattern", metavar="REGEX",
+                   help="the engine serial from each results file's name: the regular expression's first "
+                        "group, or its match (e.g. 'ESN\\d+'); default: the logs' engine attribute, else the "
+                        "folder name")
     d.add_argument("--no-pairs", action="store_true",
                    help="do not test changes of two causes: two components, a component and a sensor "
                         "(default: tested)")
@@ -70,14 +75,14 @@ def results_files(paths) -> list[str]:
     return out
 
 
-def read_flights(files):
+def read_flights(files, engine_pattern=None):
     """FlightRecords of the readable results files, and (file, reason) for the others (reported on
     stderr: one corrupt or foreign file must not stop a fleet's diagnosis)."""
     from ..fleet.diagnose import DiagnosisError, read_flight
     records, skipped = [], []
     for f in files:
         try:
-            records.append(read_flight(f))
+            records.append(read_flight(f, engine_pattern))
         except DiagnosisError as e:
             skipped.append((f, str(e)))
     if skipped:
@@ -105,18 +110,26 @@ def run_diagnose(args) -> int:
     import numpy as np
 
     from ..database import GainDatabase
-    from ..fleet.diagnose import DiagnosisConfig, diagnose_fleet, recoveries, write_diagnosis
+    from ..fleet.diagnose import DiagnosisConfig, diagnose_fleet, mixed_engines, recoveries, write_diagnosis
     from ..fleet.trending import detail_units, readable_detail
 
     check_output(args.output)
+    if args.engine_pattern:
+        try:
+            re.compile(args.engine_pattern)
+        except re.error as e:
+            print(f"pwl fleet diagnose: --engine-pattern {args.engine_pattern!r}: {e}", file=sys.stderr)
+            return 2
     files = results_files(args.results)
     if not files:
         print("pwl fleet diagnose: no results files (*.estimates.h5) found", file=sys.stderr)
         return 2
-    records, skipped = read_flights(files)
+    records, skipped = read_flights(files, args.engine_pattern)
     if not records:
         print("pwl fleet diagnose: no readable results files", file=sys.stderr)
         return 2
+    for line in mixed_engines(records):
+        print(f"pwl: warning: {line}", file=sys.stderr)
     db_path = database_of(records, args.database)
     cfg = DiagnosisConfig()
     if args.alpha is not None:

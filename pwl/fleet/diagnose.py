@@ -134,13 +134,21 @@ def _natural(s: str):
     return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", s)]
 
 
-def read_flight(path) -> FlightRecord:
+def read_flight(path, engine_pattern: str | None = None) -> FlightRecord:
     """The engine serial, flight order and longest steady snapshot of a ``pwl run`` results file.
 
-    Engine: the ``engine`` attribute (from the log), else the results file's folder name. Order:
+    Engine: the first group (or the whole match) of the regular expression ``engine_pattern``
+    searched in the file name when given (``ESN\\d+`` for ``ESN012_flight_3.estimates.h5``), else
+    the ``engine`` attribute (from the log), else the results file's folder name. Order:
     ``flight_time``, then ``flight_index``, then the file name in natural order (flight_2 before
     flight_10)."""
     path = os.fspath(path)
+    named = None
+    if engine_pattern:
+        m = re.search(engine_pattern, os.path.basename(path))
+        if m is None:
+            raise DiagnosisError(f"{path}: the engine pattern {engine_pattern!r} does not match its name")
+        named = m.group(1) if m.groups() else m.group(0)
     try:
         check_seal(path)
         with h5py.File(path, "r") as f:
@@ -148,7 +156,7 @@ def read_flight(path) -> FlightRecord:
             if "snapshots" not in f:
                 raise DiagnosisError(f"{path}: has no /snapshots (results of an older pwl run: run it again)")
             snaps = Snapshots.load(f["snapshots"])
-            engine = attr_str(f, "engine") or os.path.basename(os.path.dirname(os.path.abspath(path)))
+            engine = named or attr_str(f, "engine") or os.path.basename(os.path.dirname(os.path.abspath(path)))
             ftime = attr_str(f, "flight_time") or ""
             fidx = f.attrs.get("flight_index", -1)
             prov = [attr_str(f, k) or "" for k in ("database", "database_digest", "mode")]
@@ -159,6 +167,21 @@ def read_flight(path) -> FlightRecord:
     name = os.path.basename(path)
     label = name.split(".estimates")[0]
     return FlightRecord(str(engine), (str(ftime), int(fidx), _natural(name)), path, label, snaps, *prov)
+
+
+def mixed_engines(records: list[FlightRecord]) -> list[str]:
+    """A line for every engine whose flights repeat a flight time or flight index: most likely
+    several engines' logs in one folder, without an ``engine`` attribute, diagnosed as one."""
+    out = []
+    for engine, flights in group_engines(records).items():
+        for what, key in (("flight time", lambda r: r.order[0]), ("flight index", lambda r: r.order[1])):
+            keys = [key(r) for r in flights if key(r) not in ("", -1)]
+            if len(keys) > len(set(keys)):
+                out.append(f"engine {engine}: {len(keys) - len(set(keys))} of its {len(flights)} flights repeat "
+                           f"another's {what}: several engines' logs in one folder? Give each engine its own "
+                           "folder or an 'engine' attribute, or name it from the file names (--engine-pattern)")
+                break
+    return out
 
 
 def assign_regimes(records: list[FlightRecord], spans, radius: float = 0.35, min_share: float = 0.3) -> np.ndarray:
