@@ -491,7 +491,20 @@ class Estimator:
                 why = (f"logged in {' or '.join(guess)}? Declare the unit (a 'name[unit]' column, a row of "
                        "units or a channel map)") if guess else "a unit mistake or a failed sensor?"
                 warnings.warn(f"{path}: channel {c!r}: {k} of {n} samples implausible, typically {med:.6g} "
-                              f"where {lo:.6g} to {hi:.6g} {unit} is plausible: {why}", PwlWarning, stacklevel=3)
+                              f"where {lo:.6g} to {hi:.6g} {unit} is plausible: {why}", PwlWarning, stacklevel=4)
+
+    def _checked(self, res: Result, path) -> None:
+        """After a run of the kernel: the envelope policy (:meth:`_check_envelope`), the misfit
+        samples per sensor counted (:meth:`_count_misfit`)."""
+        self._check_envelope(res.flags, res.time, path)
+        self._count_misfit(res)
+
+    def _warn_channels(self, path, arrays, res: Result, n: int) -> None:
+        """The warnings of a log's channels mostly implausible (:meth:`_warn_units`) or misfitting
+        (:meth:`_warn_misfit`), judged on the kernel's ``arrays`` and the result ``res`` of the
+        log or of its first chunk; ``n`` samples in all."""
+        self._warn_units(path, arrays, n)
+        self._warn_misfit(path, arrays[1], res.outputs["y_hat"], n)
 
     def _count_misfit(self, res: Result) -> None:
         """Add a result's samples per sensor whose residual exceeded the misfit gate (the
@@ -520,7 +533,7 @@ class Estimator:
                    "a channel map)") if guess else "a failed or biased sensor, or a unit mistake?"
             warnings.warn(f"{path}: sensor {c!r} misfit on {k} of {n} samples (typically {have:.6g} {unit} "
                           f"against {want:.6g} predicted) and was left out of the update: {why}",
-                          PwlWarning, stacklevel=3)
+                          PwlWarning, stacklevel=4)
 
     def _split(self, log: Log, rows=slice(None)):
         """The kernel's input arrays from a log's ``rows`` (a slice; checks presence and units of
@@ -592,10 +605,8 @@ class Estimator:
         res.source = log.path
         res.attrs = {k: v for k, v in log.attrs.items() if k in LOG_ATTRS} | {
             "provenance": self.provenance | self._log_record(log)}
-        self._check_envelope(res.flags, res.time, log.path)
-        self._count_misfit(res)
-        self._warn_units(log.path, arrays, len(res.time))
-        self._warn_misfit(log.path, arrays[1], res.outputs["y_hat"], len(res.time))
+        self._checked(res, log.path)
+        self._warn_channels(log.path, arrays, res, len(res.time))
         acc = self._snapshot_accumulator(dt)
         self._accumulate(acc, 0, res, arrays)
         res.snapshots = acc.snapshots()
@@ -881,24 +892,20 @@ class Estimator:
                                  self.provenance | record, units, compression, rows=-(-n // every))
                 for a in range(0, n, chunk):     # outputs a chunk at a time, whatever the format
                     arrays, time = part(a, min(n, a + chunk))
-
                     res = self.run_arrays(*arrays, time=time)
                     first = (arrays, res) if a == 0 else first
-                    self._check_envelope(res.flags, res.time, log_path)
-                    self._count_misfit(res)
+                    self._checked(res, log_path)
                     rows = thin_rows(a, len(time), every)
                     append_rows(f, res.time[rows], {o: res.outputs[o][rows] for o in keep}, res.flags[rows])
                     self._accumulate(acc, a, res, arrays)
                     totals.add(res)
                 for k, v in (totals.attrs() | self._log_record(head)).items():
                     f.attrs[k] = v
-                self._warn_units(log_path, first[0], n)
-                self._warn_misfit(log_path, first[0][1], first[1].outputs["y_hat"], n)
+                self._warn_channels(log_path, *first, n)
                 snaps = acc.snapshots()
                 snaps.save(f.create_group("snapshots"))
-        return totals.counts | {"snapshots": len(snaps), "missing_channels": dict(self.missing),
-                                "misfit_channels": dict(self.misfit),
-                                "residual_rms": dict(zip(totals.sensors, totals.residual_rms().tolist()))}
+        return totals.counts | {"snapshots": len(snaps), "missing_channels": dict(self.missing), "misfit_channels":
+                                dict(self.misfit), "residual_rms": dict(zip(totals.sensors, totals.residual_rms().tolist()))}
 
 
 def load_bias_tables(path) -> dict:
