@@ -154,6 +154,26 @@ def test_a_component_fault_with_a_sensor_bias_is_one_two_cause_fault():
     assert float(est["sensor:C"]) == pytest.approx(1.5, abs=0.2)
 
 
+def test_a_sensor_whose_snapshot_stopped_varying_is_stuck_not_biased():
+    """Sensor A frozen from flight 6 (its snapshot's standard error 0 there, 1e-4 before) at a
+    value 2 units off: isolated as sensor:A with kind 'stuck'; the same offset on a sensor that
+    still varies is a 'step' (a bias)."""
+    rng = np.random.default_rng(9)
+    S = synthetic_signatures()
+    sd = 1e-3
+    D = rng.normal(0, sd, (10, 6))
+    D[6:] += S[:, 4] * 2.0
+    es = series(D, S)
+    es.channels = ["A@0", "B@0", "C@0", "c3@0", "c4@0", "c5@0"]   # sensors A, B, C read channels 0-2
+    es.SE[:] = 1e-4
+    biased = diagnose_engine(es, np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0))
+    es.SE[6:, 0] = 1e-12                  # sensor A's channel: 0 but for rounding
+    stuck = diagnose_engine(es, np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0))
+    for b, f in zip(biased[6:], stuck[6:]):
+        assert b.detected and b.cls == "sensor:A" and b.kind == "step"
+        assert f.detected and f.cls == "sensor:A" and f.kind == "stuck" and f.onset == 6
+
+
 def test_a_drift_is_reported_with_its_rate():
     rng = np.random.default_rng(2)
     S = synthetic_signatures()

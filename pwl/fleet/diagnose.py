@@ -464,6 +464,16 @@ def own_scatter(D: np.ndarray, Wt: np.ndarray) -> float:
     return max(1.0, float(np.quantile(md, OWN_QUANTILE) / stats.chi2.ppf(OWN_QUANTILE, D.shape[1])))
 
 
+def _frozen(es: EngineSeries, k: int, base: int, sensor: str) -> bool:
+    """Whether the sensor's snapshot value did not vary on flight k (standard error, in every
+    regime with data, below a thousandth of the baseline's first flight ``base``: 0 but for
+    rounding) where it did vary on that flight: a stuck sensor, not a bias."""
+    cols = [i for i, c in enumerate(es.channels) if c.split("@")[0] == sensor
+            and np.isfinite(es.SE[k, i]) and np.isfinite(es.SE[base, i])]
+    return bool(cols) and bool(np.all(es.SE[k, cols] <= 1e-3 * es.SE[base, cols])) \
+        and bool(es.SE[base, cols].max() > 0.0)
+
+
 def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = DiagnosisConfig()) -> list[Decision]:
     """Causal diagnosis of one engine: one :class:`Decision` per flight, using flights 0..k."""
     n, m = es.D.shape
@@ -529,11 +539,13 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
                 break
         if dec.kind == "recovery":
             first = int(np.searchsorted(number, dec.onset))
+        if dec.detected and dec.cls.startswith("sensor:") and _frozen(es, k, rowsok[0], dec.cls[7:]):
+            dec.kind = "stuck"
         dec.earlier = " ".join(f"{c}@{tau:g}" for tau, c in known if tau < dec.onset)
         # a step found on two flights in a row with the same class and onset is a fault found:
         # later flights look for a new change after it (a second fault, a repair) measured from it
         prev = rows[-1] if rows else None
-        if dec.detected and dec.kind == "step" and prev is not None and prev.detected and \
+        if dec.detected and dec.kind in ("step", "stuck") and prev is not None and prev.detected and \
                 (prev.cls, prev.onset) == (dec.cls, dec.onset) and dec.onset not in [f[0] for f in found]:
             found.append((dec.onset, dec.cls))
         rows.append(dec)
