@@ -27,6 +27,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from .byref import fields, record
 from .covariance import correct, propagate_augmented
 from .database import OUT_NONE, DatabaseError, GainDatabase
 from .errors import UsageError
@@ -197,6 +198,11 @@ class Outputs(NamedTuple):
     bias_hat: np.ndarray
     h_std: np.ndarray
     flags: np.ndarray
+
+
+Kernel = record("Kernel", ["io", "model", "grids", "filt", "bias", "out", "work"],
+                """The step loop's records (:class:`Inputs`, :class:`Model`, :class:`Grids`, :class:`Filter`,
+                :class:`Bias`, :class:`Outputs`, :class:`Work`) by reference (:mod:`pwl.byref`).""")
 
 
 class Work(NamedTuple):
@@ -662,8 +668,8 @@ def _sizes(io, model, bias):
 
 
 @njit(cache=True, nogil=True, fastmath={"reassoc", "contract"}, _nrt=False)
-def step_loop(io, model, grids, filt, bias, out, work):
-    """The step loop of :func:`filter_loop` (same records, plus its workspace ``work``), one
+def step_loop(kern):
+    """The step loop of :func:`filter_loop` over the :class:`Kernel` ``kern`` (its records, plus the workspace), one
     helper per line of the equations in the module docstring. Also the stream's step
     (:class:`pwl.streaming.Stream`, one row). The body is written in the loop: as a function of
     its own inlined by numba (``inline="always"``) it took the kernel's compilation from 50 to
@@ -673,8 +679,8 @@ def step_loop(io, model, grids, filt, bias, out, work):
     arrays, and the atomic increments and decrements of their reference counts were a fifth
     of the time per step (perf; 418 -> 360 ns on the demo flight). It also makes any
     allocation in the loop a compile error."""
+    io, model, grids, filt, bias, out, w = fields(kern)
     sizes = _sizes(io, model, bias)
-    w = work
     for k in range(io.U.shape[0]):
         nx, nu, ny, nz, nq, ns, nb, oA, oB, oC, oD, oF, oG, oK, oQ, oR, _, _, \
             ox, oq, ou, osl, oth, ode, oyl, ost, _ = sizes
@@ -777,7 +783,7 @@ def filter_loop(io, model, grids, filt, bias, out):
     (per axis the closer breakpoint) selects the centroid gain (column-major, na x ny); the
     dynamics blocks then hold no K.
     """
-    return step_loop(io, model, grids, filt, bias, out, workspace(io.S.shape[1], model, grids, filt, bias))
+    return step_loop(Kernel(io, model, grids, filt, bias, out, workspace(io.S.shape[1], model, grids, filt, bias)))
 
 
 @njit(cache=True, nogil=True)

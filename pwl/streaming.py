@@ -14,11 +14,10 @@ screening before and the same reporting pass after, through one compiled functio
 arguments are the stream's state (a numba structure) and the sample: its numbers equal a batch
 run's bit for bit (but where a scheduling channel or theta/delta jumps by more than 5 % of its
 span in one sample: unable to see ahead, the stream holds the channel until it comes back or for
-64 samples, :func:`_hold_jumps`, where the batch holds only the runs that do come back). A step costs about 3.5 us from Python against 0.55-0.75 us per sample in
-batch on the demo database (``pwl bench stream``): numba's call from Python (0.45 us), passing
-the kernel's ~90 arrays to the step loop once per sample instead of once per log (~0.8 us) and
-caches that the Python code between calls has emptied are most of it;
-97 us per sample before. Samples that
+64 samples, :func:`_hold_jumps`, where the batch holds only the runs that do come back). A step
+costs about 1.3 us from Python against 0.45 us per sample in batch on the demo database (``pwl
+bench stream``): numba's call from Python (0.33 us), the row's check (0.2 us), the step loop
+for one row (0.7 us; the kernel's records go by reference, :mod:`pwl.byref`). Samples that
 arrive in packets (a data bus, a file being written) run at batch speed through
 ``Estimator.run_arrays``, which continues from the current state. The stream
 shares the estimator's filter state: ``stream.reset()`` (or ``est.reset()``) restarts both.
@@ -27,59 +26,20 @@ from __future__ import annotations
 
 import numba
 import numpy as np
-from numba import njit
-from numba.core import cgutils, types
-from numba.experimental import structref
-from numba.extending import intrinsic
+from numba import njit, types
 
+from .byref import fields, record
 from .errors import UsageError
 from .estimator import _SPIKE as _HELD, BURST_MAX, SPIKE_FRACTION
-from .runtime import (FLAG_DYN_OUTSIDE, FLAG_TRIM_OUTSIDE, Inputs, step_loop, blank_implausible, report, screen,
+from .runtime import (FLAG_DYN_OUTSIDE, FLAG_TRIM_OUTSIDE, Inputs, Kernel, step_loop, blank_implausible, report, screen,
                       state_layout, workspace)
 
 
 _F8 = np.dtype(np.float64)
 
 
-@structref.register
-class _StreamType(types.StructRef):
-    def preprocess_fields(self, fields):
-        return tuple((name, types.unliteral(typ)) for name, typ in fields)
-
-
-class _StreamState(structref.StructRefProxy):
-    """Everything one step needs, in one numba structure (one argument to unbox per call)."""
-
-
-structref.define_proxy(_StreamState, _StreamType, ["io", "cols", "records", "work", "post", "jump"])
-
-
-def _unowned(context, builder, ty, val):
-    """``val`` of numba type ``ty`` (an array, or tuples of them) with every array's owner
-    (meminfo) and parent set to null."""
-    if isinstance(ty, types.Array):
-        ary = context.make_array(ty)(context, builder, value=val)
-        ary.meminfo = cgutils.get_null_value(ary.meminfo.type)
-        ary.parent = cgutils.get_null_value(ary.parent.type)
-        return ary._getvalue()
-    if isinstance(ty, types.BaseTuple):
-        return context.make_tuple(builder, ty, [_unowned(context, builder, t, builder.extract_value(val, i))
-                                                for i, t in enumerate(ty.types)])
-    return val
-
-
-@intrinsic
-def _borrow(typingctx, x):
-    """The arrays of ``x`` (an array or nested tuples of arrays) as views numba does not
-    reference-count: reading a record of ~90 arrays out of the stream's state cost two atomic
-    operations per array and step (0.5 us of 4). The :class:`Stream` holds the arrays."""
-    return x(x), lambda context, builder, sig, args: _unowned(context, builder, x, args[0])
-
-
-@njit(cache=True)
-def _borrowed_state(io, cols, records, work, post, jump):
-    """The stream's state over arrays the caller keeps alive (:func:`_borrow`)."""
-    return _StreamState(_borrow(io), cols, _borrow(records), _borrow(work), _borrow(post), _borrow(jump))
+_StreamState = record("StreamState", ["kern", "cols", "post", "jump"],
+                      "Everything a streamed step needs, by reference (one argument to unbox per call).")
 
 
 @njit(cache=True, nogil=True)
@@ -105,14 +65,14 @@ def _hold_jumps(S, TH, DE, state, osl, jump, longest):
             jump[0, c] = 0.0
 
 
-@njit(cache=True, nogil=True)
-def _stream_step(st, row):
-    """One sample ``row`` (the stream's channels) through screen, the step loop and report."""
-    io = st.io
+@njit(cache=True, nogil=True, _nrt=False)
+def _take_row(st, row):
+    """Copy ``row`` into the kernel's one-row inputs, hold its jumps (:func:`_hold_jumps`) and
+    screen it (:func:`pwl.runtime.screen`), as a batch run does before its step loop."""
+    kern, cols, post, jump = fields(st)
+    io, _, _, filt, _, out, _ = fields(kern)
     U, Y, S, TH, DE = io
-    model, grids, filt, bias, out = st.records
-    flags = out.flags
-    iu, iy, i_s, ith, ide, t_std, p_std, osl = st.cols
+    iu, iy, i_s, ith, ide, t_std, p_std, osl = cols
     for j in range(iu.shape[0]):
         U[0, j] = row[iu[j]]
     for j in range(iy.shape[0]):
@@ -121,13 +81,30 @@ def _stream_step(st, row):
         S[0, j] = row[i_s[j]]
     TH[0] = row[ith] / t_std if ith >= 0 else 1.0
     DE[0] = row[ide] / p_std if ide >= 0 else 1.0
-    _hold_jumps(S, TH, DE, filt.state, osl, st.jump, BURST_MAX)
-    lim, chan_count, q_hat, VT, h_ref, h_lo, h_hi, h_hat, h_held = st.post
-    if screen(U, Y, S, TH, DE, lim, chan_count, flags):
+    _hold_jumps(S, TH, DE, filt.state, osl, jump, BURST_MAX)
+    lim, chan_count = post[0], post[1]
+    if screen(U, Y, S, TH, DE, lim, chan_count, out.flags):
         blank_implausible(U, Y, S, TH, DE, lim)
-    step_loop(io, model, grids, filt, bias, out, st.work)
+
+
+@njit(cache=True, nogil=True, _nrt=False)
+def _report(st):
+    """The reporting pass of a batch run after its step loop (:func:`pwl.runtime.report`);
+    returns the step's flags."""
+    kern, _, post, _ = fields(st)
+    flags = fields(kern)[5].flags
+    _, _, q_hat, VT, h_ref, h_lo, h_hi, h_hat, h_held = post
     report(q_hat, VT, h_ref, h_lo, h_hi, h_hat, flags, h_held)
     return flags[0]
+
+
+@njit(cache=True, nogil=True, _nrt=False)
+def _stream_step(st, row):
+    """One sample ``row`` (the stream's channels) through screen, the step loop and report; the
+    state ``st`` and the kernel's records are passed by reference (:mod:`pwl.byref`)."""
+    _take_row(st, row)
+    step_loop(fields(st)[0])
+    return _report(st)
 
 
 class Stream:
@@ -179,14 +156,13 @@ class Stream:
         self._jump = np.vstack([np.zeros(ns + 2), SPIKE_FRACTION * span])
         nx, _, _, _, nq, _ = est.pm.dims
         osl = state_layout(nx, nq, nu, ns, ny)[3]          # the filter state's last scheduling values
-        self._keep = (io, records, work, post, self._jump)   # the state's arrays are borrowed from these
-        self._st = _borrowed_state(io, tuple(index) + th + (osl,), records, work, post, self._jump)
-        self._check = db.policy == "error"
-        self._shape = (len(self.channels),)
+        self._st = _StreamState(Kernel(io, *records, work), tuple(index) + th + (osl,), post, self._jump)
+        self._stop = FLAG_TRIM_OUTSIDE | FLAG_DYN_OUTSIDE if db.policy == "error" else 0
+        self._n = len(self.channels)
         # numba's compiled entry for exactly these argument types (compiled or loaded here, not
         # run), called without the dispatcher's type resolution (0.8 us per call: hashing the
         # state's structure type); step() checks the row's type itself
-        sig = (numba.typeof(self._st), numba.typeof(np.zeros(1)))
+        sig = (numba.typeof(self._st), types.Array(types.float64, 1, "A"))   # any strides
         _stream_step.compile(sig)
         self._call = _stream_step.overloads[sig].entry_point
         for o, a in self.outputs.items():
@@ -210,15 +186,14 @@ class Stream:
         EnvelopeError
             The operating point left the grid and the database's policy is ``error``.
         """
-        if not (row.__class__ is np.ndarray and row.dtype is _F8 and row.shape == self._shape
-                and row.flags.c_contiguous):
+        if not (type(row) is np.ndarray and row.dtype is _F8 and row.ndim == 1 and len(row) == self._n):
             row = self._as_row(row)
         f = self._call(self._st, row)
-        if self._check and f & (FLAG_TRIM_OUTSIDE | FLAG_DYN_OUTSIDE):
+        if f & self._stop:
             from .estimator import EnvelopeError
             raise EnvelopeError("stream: operating point outside the database grid and the "
                                 "database's out-of-range policy is 'error'")
-        return int(f)
+        return f
 
     def _as_row(self, row) -> np.ndarray:
         """``row`` as the float64 vector step() reads, or a UsageError naming what is wrong."""
@@ -226,7 +201,7 @@ class Stream:
             r = np.ascontiguousarray(row, dtype=np.float64)
         except (TypeError, ValueError):
             raise UsageError(f"stream: a sample row must be numbers, one per channel {self.channels}") from None
-        if r.shape != self._shape:
+        if r.shape != (self._n,):
             raise UsageError(f"stream: a sample row has {len(self.channels)} values, one per channel "
                              f"{self.channels}; got shape {np.shape(row)}")
         return r

@@ -147,8 +147,9 @@ def test_a_new_stream_has_taken_no_sample():
 
 
 def test_a_stream_keeps_the_arrays_its_kernel_reads():
-    """The stream's compiled state reads its arrays without owning them (pwl.streaming._borrow):
-    made and left alone, with the memory of freed arrays reused, it must still equal batch."""
+    """The stream's compiled state reads its arrays without reference counting (pwl.byref.fields);
+    its record must keep them alive: made and left alone, with the memory of freed arrays reused,
+    it must still equal batch."""
     import gc
     db = names_db()
     U, Y, S, TH, DE = inputs(db, n=60)
