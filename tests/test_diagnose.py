@@ -311,3 +311,62 @@ def test_kappa_closed_form():
     # 2 x 2: po = 0.7, pe = 0.5 * 0.6 + 0.5 * 0.4 = 0.5 -> kappa 0.4
     assert kappa([[35, 15], [15, 35]]) == pytest.approx(0.4)
     assert kappa([[20, 30], [10, 40]]) == pytest.approx((0.6 - (0.5 * 0.3 + 0.5 * 0.7)) / (1 - 0.5))
+
+
+# ---- accelerated wear against the fleet's normal wear --------------------------------------------
+def wear_fleet(n_engines=20, n=25, sd=1e-3, seed=4, fast=None):
+    """Engines whose health parameters (COLUMNS[:4]) wear at rates drawn U(-1e-3, 0) per flight
+    (normal wear), their deviations S_h @ (rate * t) + offset + noise; ``fast`` (engine,
+    column, extra rate) adds wear to one engine."""
+    rng = np.random.default_rng(seed)
+    S = synthetic_signatures()
+    rates = rng.uniform(-1e-3, 0.0, (n_engines, 4))
+    if fast is not None:
+        rates[fast[0], fast[1]] += fast[2]
+    t = np.arange(n, dtype=float)
+    out = []
+    for e in range(n_engines):
+        D = (t[:, None] * (S[:, :4] @ rates[e])) + rng.normal(0, 0.01, 6) + rng.normal(0, sd, (n, 6))
+        out.append(series(D, S, engine=f"E{e:02d}"))
+    return out, rates, np.eye(6) * sd ** 2
+
+
+def test_wear_reference_is_the_fleets_median_and_spread_of_wear_rates():
+    """The reference's per-parameter median and robust spread equal numpy's of the rates the
+    engines were drawn with (within the rates' estimation noise)."""
+    from pwl.fleet.diagnose import wear_reference
+    fleet, rates, Sigma = wear_fleet(n_engines=60)
+    ref = wear_reference(fleet, Sigma)
+    assert ref.engines == 60 and list(ref.columns) == [0, 1, 2, 3]
+    np.testing.assert_allclose(ref.median, np.median(rates, axis=0), atol=4e-5)
+    mad = 1.4826 * np.median(np.abs(rates - np.median(rates, axis=0)), axis=0)
+    np.testing.assert_allclose(ref.spread, mad, rtol=0.15)
+    assert wear_reference(fleet[:7], Sigma) is None          # too few engines: no reference
+
+
+def test_wear_faster_than_the_fleets_is_found_and_normal_wear_is_not():
+    """One engine wears its hpt 3 x the fleet's fastest normal rate: kind 'wear', class hpt, its
+    excess rate sized; the 19 engines with normal wear raise no alarm at any flight. Without the
+    fleet (min_rate) the same engine is not reported: its wear is below min_rate."""
+    from pwl.fleet.diagnose import wear_reference
+    fleet, rates, Sigma = wear_fleet(fast=(3, 2, -3e-3))
+    cfg = DiagnosisConfig(min_step=0.002, min_rate=0.02)
+    ref = wear_reference(fleet, Sigma, cfg)
+    rows = {es.engine: diagnose_engine(es, Sigma, cfg, ref) for es in fleet}
+    last = rows["E03"][-1]
+    assert last.detected and last.kind == "wear" and last.cls == "hpt" and last.onset == 0
+    excess = rates[3, 2] - ref.median[2]
+    assert last.magnitude == pytest.approx(excess, abs=3 * last.magnitude_std + 2e-4)
+    assert sum(r.detected for e, rs in rows.items() if e != "E03" for r in rs) == 0
+    alone = diagnose_engine(fleet[3], Sigma, cfg)[-1]
+    assert not alone.detected
+
+
+def test_wear_slower_than_the_fleets_is_not_a_fault():
+    """An engine whose hpt efficiency improves against its fleet's wear (a rate of +3e-3 per
+    flight beyond it) is an outlier of the fleet too, but not a fault: no alarm."""
+    from pwl.fleet.diagnose import wear_reference
+    fleet, rates, Sigma = wear_fleet(fast=(3, 2, +3e-3))
+    cfg = DiagnosisConfig(min_step=0.002, min_rate=0.02)
+    rows = diagnose_engine(fleet[3], Sigma, cfg, wear_reference(fleet, Sigma, cfg))
+    assert not any(r.detected for r in rows)

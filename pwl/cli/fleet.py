@@ -155,7 +155,8 @@ def run_diagnose(args) -> int:
         print(f"{nosnap} flights without a steady snapshot (not diagnosed)")
     print(f"{len(flagged)} engines with a fault at their latest flight:")
     for e, r in flagged.items():
-        what = f"{r.kind} {readable_detail(r.detail, units)}"
+        what = f"{r.kind} {readable_detail(r.detail, units)}" + {
+            "drift": " per flight", "wear": " per flight beyond the fleet's normal wear"}.get(r.kind, "")
         after = f" (after {', '.join(r.earlier.split())}, still present)" if r.earlier else ""
         print(f"  {e}: {r.cls} from flight {r.onset}, {what}, confidence {r.confidence:.2f}{after}")
     by_engine: dict = {}

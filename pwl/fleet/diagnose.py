@@ -29,6 +29,8 @@ when nothing changed.
   as a two-parameter component change that fits it equally well); confidence = its share of exp((T - kappa * rank) / 2) over the bank.
 - **Sizing**: theta with its standard error from the same least squares.
 - **Drift**: a ramp that wins is reported as kind ``drift`` with its rate per flight.
+- **Wear**: in a fleet, the whole-history ramp is tested against the fleet's normal wear
+  (:func:`wear_reference`) instead of ``min_rate``: kind ``wear``, its rate beyond the fleet's.
 - **Recovery**: a component step whose efficiencies all rise (a compressor wash, a repair) is
   not a fault: status and kind ``recovery``, ``detected`` 0. From its onset on the engine is
   diagnosed on a new baseline (the flights before it are left out), so that a later fault is
@@ -68,7 +70,9 @@ class DiagnosisConfig:
     parameter in isolation; n_base: fault-free flights needed before a step can be tested;
     min_step: smallest change reported (norm of the relative deviation change); min_rate: smallest
     drift reported (per flight, same norm); floor: smallest flight-to-flight scatter assumed per
-    channel (relative); eps: relative uncertainty of the signatures; pairs: also test
+    channel (relative); wear_engines, wear_flights: a fleet of at least wear_engines engines
+    with wear_flights complete flights each gives the normal wear its engines are tested against
+    (:func:`wear_reference`); eps: relative uncertainty of the signatures; pairs: also test
     changes of two causes (two components, a component and a sensor), at an extra cost ``pair_cost`` (a combined fault is rarer than a single
     one, and must explain more than a large single fault's nonlinearity); wear: the engine's own
     wear line is a nuisance of the step tests (normal wear is not a fault)."""
@@ -78,6 +82,8 @@ class DiagnosisConfig:
     n_base: int = 3
     min_step: float = 0.002
     min_rate: float = 0.001
+    wear_engines: int = 8
+    wear_flights: int = 8
     floor: float = 2e-4
     eps: float = 0.1
     pairs: bool = True
@@ -316,6 +322,57 @@ def noise_covariance(series: list[EngineSeries], floor: float) -> np.ndarray:
 
 
 @dataclass
+class WearReference:
+    """The fleet's normal wear: per health parameter (``columns``, indices into the signature
+    columns) the median rate over the engines and its robust spread (fraction per flight)."""
+
+    columns: np.ndarray
+    median: np.ndarray
+    spread: np.ndarray
+    engines: int
+
+    def at(self, S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(mean rate (k,), rate covariance (k, k)) in deviations per flight of channels with
+        signatures S (k, ncol): S_h median, S_h diag(spread^2) S_h^T."""
+        Sh = S[:, self.columns]
+        return Sh @ self.median, (Sh * self.spread ** 2) @ Sh.T
+
+
+def wear_reference(series: list[EngineSeries], Sigma: np.ndarray,
+                   cfg: DiagnosisConfig = DiagnosisConfig()) -> WearReference | None:
+    """The normal wear of a fleet, from every engine with at least ``cfg.wear_flights`` complete
+    flights (None with fewer than ``cfg.wear_engines`` of them): each engine's deviation rate
+    (least-squares slope per channel over its flight numbers) read as health-parameter rates
+    (whitened least squares on the mean signatures of its component columns); per parameter the
+    median over the engines and 1.4826 x the median absolute deviation. Robust to the engines
+    with a fault (a step makes a slope an outlier), up to half of them. Like Sigma it uses every
+    engine's whole history: an engine is compared with its fleet's wear, not with its own."""
+    cols = np.array([j for j, c in enumerate(series[0].columns) if not c.startswith("sensor:")] if series else [])
+    if cols.size == 0:
+        return None
+    rates = []
+    Wt = np.linalg.inv(np.linalg.cholesky(Sigma))
+    for es in series:
+        ok = np.all(np.isfinite(es.D), axis=1)
+        if ok.sum() < cfg.wear_flights:
+            continue
+        D = es.D[ok]
+        t = np.arange(es.D.shape[0], dtype=float)[ok]
+        fidx = [f.order[1] for f in es.flights]
+        if min(fidx, default=-1) >= 0 and len(set(fidx)) == len(fidx):
+            t = np.array(fidx, float)[ok]
+        tc = t - t.mean()
+        slope = tc @ D / (tc @ tc)
+        Sh = np.nanmean(es.S[ok], axis=0)[:, cols]
+        rates.append(np.linalg.lstsq(Wt @ Sh, Wt @ slope, rcond=None)[0])
+    if len(rates) < cfg.wear_engines:
+        return None
+    R = np.array(rates)
+    med = np.median(R, axis=0)
+    return WearReference(cols, med, 1.4826 * np.median(np.abs(R - med), axis=0), len(rates))
+
+
+@dataclass
 class Decision:
     """The diagnosis of one engine at one flight (one row of ``diagnosis.csv``)."""
 
@@ -345,7 +402,7 @@ CSV_FIELDS = ("engine", "flight", "label", "status", "detected", "class", "kind"
               "missing", "earlier", "source")
 
 
-def _fit_changes(D, Wt, S, t, taus, shape, bank, eps, trend=False, steps=()):
+def _fit_changes(D, Wt, S, t, taus, shape, bank, eps, trend=False, steps=(), spread=None):
     """For each change point tau and hypothesis: statistic, estimate, its covariance.
 
     D (n, m) deviations at flights t (n,), Wt (m, m) whitening (Wt @ d ~ N(0, I)), S (m, ncol)
@@ -356,6 +413,8 @@ def _fit_changes(D, Wt, S, t, taus, shape, bank, eps, trend=False, steps=()):
     (linearisation at the database's nodes, fault sizes beyond the linear range), so the
     covariance of the change estimate grows by (eps * change)^2 per channel, the change being
     the observed one (common to every hypothesis, which keeps their statistics comparable).
+    ``spread`` (m, m): a covariance the change estimate also has (the fleet's normal wear rates
+    for a wear ramp, :func:`wear_reference`).
     Returns a list of (tau, hypothesis index, T, theta, cov, E) with E = g2 |Wt delta|^2 the
     likelihood gain of an unconstrained change at tau (no signature uncertainty): what locates
     the change point, since T saturates near 1/eps^2 per channel for a large change at any tau."""
@@ -381,6 +440,8 @@ def _fit_changes(D, Wt, S, t, taus, shape, bank, eps, trend=False, steps=()):
         delta = D.T @ g / g2                   # the observed change (per unit of f), relative
         E = g2 * float(np.sum((Wt @ delta) ** 2))
         Cw = np.eye(D.shape[1]) / g2 + (Wt * ((eps * delta) ** 2 + known)) @ Wt.T
+        if spread is not None:
+            Cw += Wt @ spread @ Wt.T
         Lw = np.linalg.cholesky(Cw)
         v = np.linalg.solve(Lw, Wt @ delta)    # whitened change estimate, N(0, I) if none
         Sw = np.linalg.solve(Lw, Wt @ S)
@@ -399,7 +460,9 @@ def _fit_changes(D, Wt, S, t, taus, shape, bank, eps, trend=False, steps=()):
 def _decide(dec, stage, bank, S, t, es, rowsok, n_tests, cfg) -> bool:
     """The change point and shape of one stage with the largest likelihood gain of an
     unconstrained change, then the hypothesis there with the largest T - cost; fill ``dec`` and
-    return True if it is detected (Bonferroni p below alpha and big enough)."""
+    return True if it is detected (Bonferroni p below alpha and big enough). Shape ``wear``: a
+    ramp from the first flight tested against the fleet's normal wear (its size need not reach
+    min_rate, only min_step over the history)."""
     by_point = {}
     for shape, fits in stage:
         for f in fits:
@@ -412,20 +475,20 @@ def _decide(dec, stage, bank, S, t, es, rowsok, n_tests, cfg) -> bool:
     p = float(stats.chi2.sf(T, len(bank[hi].columns))) * n_tests
     h = bank[hi]
     size = float(np.linalg.norm(S[:, h.columns] @ th))   # fitted change (rate for ramps), relative
-    if shape == "ramp":
-        big = size >= cfg.min_rate and size * (t[-1] - tau + 1) >= cfg.min_step
+    if shape != "step":
+        big = size >= (cfg.min_rate if shape == "ramp" else 0.0) and size * (t[-1] - tau + 1) >= cfg.min_step
     else:
         big = size >= cfg.min_step
-    if not (p < cfg.alpha and big):
-        return False
+    effs = [v for c, v in zip(h.columns, th) if es.columns[c].endswith("_eff")]
+    if not (p < cfg.alpha and big) or (shape == "wear" and effs and min(effs) > 0):
+        return False       # (a wear whose efficiencies rise wears slower than its fleet: not a fault)
     # confidence among the bank at the chosen change point and shape
     sc = np.array([f[2] - bank[f[1]].cost(cfg) for f in here])
     w = np.exp((sc - sc.max()) / 2.0)
     w /= w.sum()
     order = np.argsort(-w)
     dec.detected, dec.cls, dec.statistic = 1, h.name, T
-    dec.kind = "step" if shape == "step" else "drift"
-    effs = [v for c, v in zip(h.columns, th) if es.columns[c].endswith("_eff")]
+    dec.kind = {"ramp": "drift"}.get(shape, shape)
     if shape == "step" and effs and min(effs) > 0:     # every efficiency up: maintenance, not a fault
         dec.detected, dec.kind, dec.status = 0, "recovery", "recovery"
     dec.onset = int(tau)
@@ -474,8 +537,11 @@ def _frozen(es: EngineSeries, k: int, base: int, sensor: str) -> bool:
         and bool(es.SE[base, cols].max() > 0.0)
 
 
-def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = DiagnosisConfig()) -> list[Decision]:
-    """Causal diagnosis of one engine: one :class:`Decision` per flight, using flights 0..k."""
+def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = DiagnosisConfig(),
+                    wear: "WearReference | None" = None) -> list[Decision]:
+    """Causal diagnosis of one engine: one :class:`Decision` per flight, using flights 0..k.
+    ``wear``: the fleet's normal wear (:func:`wear_reference`); without it, wear is reported
+    when faster than ``cfg.min_rate``."""
     n, m = es.D.shape
     bank_all = hypotheses(es.columns, cfg.pairs)
     rows = []
@@ -518,8 +584,13 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
         stage1 = [("step", fit(t[cfg.n_base:], "step", trend=cfg.wear)),
                   ("ramp", fit(t[1:], "ramp", trend=cfg.wear))]
         # 2. with the wear line as nuisance, wear faster than normal is tested on its own: the
-        #    engine's whole-history rate (a ramp from the first flight, level only)
+        #    engine's whole-history rate (a ramp from the first flight, level only), against the
+        #    fleet's normal wear when there is a fleet
         stage2 = [("ramp", fit(t[:1], "ramp"))] if cfg.wear else []
+        if cfg.wear and wear is not None:
+            mean, spread = wear.at(Sbar_all)
+            stage2 = [("wear", _fit_changes(D - np.outer(t, mean), Wt, Sbar_all, t, t[:1], "ramp", bank,
+                                            cfg.eps, spread=spread))]
         known = [f for f in found if f[0] >= first]
         if known:   # a new change after the faults found, measured from them; else the last one
             steps = [f[0] for f in known]
@@ -593,9 +664,10 @@ def diagnose_fleet(records: list[FlightRecord], db: GainDatabase,
     sig, centers = prepare(records, db)
     series = [engine_series(v, sig, len(centers)) for v in group_engines(records).values()]
     Sigma = noise_covariance(series, cfg.floor)
+    wear = wear_reference(series, Sigma, cfg) if cfg.wear else None
     rows = []
     for es in series:
-        rows += diagnose_engine(es, Sigma, cfg)
+        rows += diagnose_engine(es, Sigma, cfg, wear)
     return rows, Sigma, series[0].channels, centers
 
 

@@ -126,8 +126,9 @@ class EngineTrend:
         lines.append(f"{'  +-':<14}" + "".join(f"{100 * v:>8.3f}" for v in self.slope_se))
         d = self.latest
         if d.detected:
-            size = (f"{'rate' if d.kind == 'drift' else 'size'} {100 * d.magnitude:+.2f} "
-                    f"+- {100 * d.magnitude_std:.2f} %{'/flight' if d.kind == 'drift' else ''}")
+            rate = d.kind in ("drift", "wear")
+            size = (f"{'rate' if rate else 'size'} {100 * d.magnitude:+.2f} "
+                    f"+- {100 * d.magnitude_std:.2f} %{'/flight' if rate else ''}")
             if np.isfinite(d.bias):
                 size += f", bias {d.bias:+.4g} (sensor units)"
             lines.append(f"FAULT: {d.cls} ({d.kind} since flight {d.onset}), {size}, confidence "
@@ -138,6 +139,10 @@ class EngineTrend:
         else:
             lines.append(f"no fault detected (p = {d.p_value:.3g})" if np.isfinite(d.p_value) else
                          f"no fault detected ({d.status})")
+            if d.p_value < DiagnosisConfig.alpha:
+                lines.append("  a change is significant but smaller than the sizes reported (min_step, and "
+                             "min_rate per flight for wear): normal wear? An engine's wear is judged "
+                             "against its fleet's by pwl fleet diagnose")
         for r in recoveries(self.decisions):
             lines.append(f"RECOVERY (maintenance?): {r.cls} at flight {r.onset}, size {100 * r.magnitude:+.2f} "
                          f"+- {100 * r.magnitude_std:.2f} %; {self.detail(r)}; diagnosed on a new baseline since")
