@@ -537,6 +537,31 @@ def _frozen(es: EngineSeries, k: int, base: int, sensor: str) -> bool:
         and bool(es.SE[base, cols].max() > 0.0)
 
 
+def _stages(D, Wt, S, t, bank, cfg, wear, steps):
+    """The fits of the two stages of a flight's tests (lists of (shape, fits of
+    :func:`_fit_changes`)): deviations D (n, m) at flight numbers t (n,), whitening Wt, the
+    signatures S (m, ncol) (they hardly move with the operating point: their mean over the flights),
+    the fleet's normal ``wear`` or None, ``steps`` the onsets of the faults found."""
+    fit = partial(_fit_changes, D, Wt, S, t, bank=bank, eps=cfg.eps)
+    if steps:   # a new change after the faults found, measured from them; else the last one
+        new = t[t > steps[-1]]
+        return ([("step", fit(new, "step", trend=cfg.wear, steps=steps)),
+                 ("ramp", fit(new, "ramp", trend=cfg.wear, steps=steps))],
+                [("step", fit(np.array([float(steps[-1])]), "step", trend=cfg.wear, steps=steps[:-1]))])
+    # 1. a step or a drift that starts after the first flights, off the engine's wear line
+    stage1 = [("step", fit(t[cfg.n_base:], "step", trend=cfg.wear)), ("ramp", fit(t[1:], "ramp", trend=cfg.wear))]
+    # 2. with the wear line as nuisance, wear faster than normal is tested on its own: the
+    #    engine's whole-history rate (a ramp from the first flight, level only), against the
+    #    fleet's normal wear when there is a fleet
+    if not cfg.wear:
+        return stage1, []
+    if wear is None:
+        return stage1, [("ramp", fit(t[:1], "ramp"))]
+    mean, spread = wear.at(S)
+    return stage1, [("wear", _fit_changes(D - np.outer(t, mean), Wt, S, t, t[:1], "ramp", bank, cfg.eps,
+                                          spread=spread))]
+
+
 def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = DiagnosisConfig(),
                     wear: "WearReference | None" = None) -> list[Decision]:
     """Causal diagnosis of one engine: one :class:`Decision` per flight, using flights 0..k.
@@ -578,26 +603,8 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
         # hypotheses testable with these channels (a bias of a channel without data is not)
         bank = [h for h in bank_all if np.linalg.norm(Sbar_all[:, h.columns], axis=0).min() > 1e-9]
         t = number[rowsok]
-        # the signatures hardly move with the operating point: their mean over the flights is used
-        fit = partial(_fit_changes, D, Wt, Sbar_all, t, bank=bank, eps=cfg.eps)
-        # 1. a step or a drift that starts after the first flights, off the engine's wear line
-        stage1 = [("step", fit(t[cfg.n_base:], "step", trend=cfg.wear)),
-                  ("ramp", fit(t[1:], "ramp", trend=cfg.wear))]
-        # 2. with the wear line as nuisance, wear faster than normal is tested on its own: the
-        #    engine's whole-history rate (a ramp from the first flight, level only), against the
-        #    fleet's normal wear when there is a fleet
-        stage2 = [("ramp", fit(t[:1], "ramp"))] if cfg.wear else []
-        if cfg.wear and wear is not None:
-            mean, spread = wear.at(Sbar_all)
-            stage2 = [("wear", _fit_changes(D - np.outer(t, mean), Wt, Sbar_all, t, t[:1], "ramp", bank,
-                                            cfg.eps, spread=spread))]
-        known = [f for f in found if f[0] >= first]
-        if known:   # a new change after the faults found, measured from them; else the last one
-            steps = [f[0] for f in known]
-            new = t[t > steps[-1]]
-            stage1 = [("step", fit(new, "step", trend=cfg.wear, steps=steps)),
-                      ("ramp", fit(new, "ramp", trend=cfg.wear, steps=steps))]
-            stage2 = [("step", fit(np.array([float(steps[-1])]), "step", trend=cfg.wear, steps=steps[:-1]))]
+        known = [f[0] for f in found if f[0] >= first]
+        stage1, stage2 = _stages(D, Wt, Sbar_all, t, bank, cfg, wear, known)
         n_tests = max(1, sum(len(f) for _, f in stage1 + stage2))
         every = [f for _, fits in stage1 + stage2 for f in fits]
         if not every:
@@ -612,7 +619,7 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
             first = int(np.searchsorted(number, dec.onset))
         if dec.detected and dec.cls.startswith("sensor:") and _frozen(es, k, rowsok[0], dec.cls[7:]):
             dec.kind = "stuck"
-        dec.earlier = " ".join(f"{c}@{tau:g}" for tau, c in known if tau < dec.onset)
+        dec.earlier = " ".join(f"{c}@{tau:g}" for tau, c in found if first <= tau < dec.onset)
         # a step found on two flights in a row with the same class and onset is a fault found:
         # later flights look for a new change after it (a second fault, a repair) measured from it
         prev = rows[-1] if rows else None

@@ -345,9 +345,9 @@ def run_many(db_path, log_paths, outdir, workers: int | None = None, csv: bool =
     est = Estimator(db, mode, resample=resample, channel_map=channel_map, **dict(checks))  # named errors first
     keep = select_outputs(est.names, outputs)
     compression_filters(compression)
-    job = Job(os.path.abspath(db.path), db.digest, mode, resample,
-              None if channel_map is None else os.path.abspath(os.fspath(channel_map)), None if outputs is None else tuple(keep), check_every(every), compression, force,
-              socket.gethostname(), checks)
+    cmap = None if channel_map is None else os.path.abspath(os.fspath(channel_map))
+    job = Job(os.path.abspath(db.path), db.digest, mode, resample, cmap, None if outputs is None else tuple(keep),
+              check_every(every), compression, force, socket.gethostname(), checks)
     _DATABASES.setdefault((job.database, job.digest), db)   # this process and forked workers
     os.makedirs(outdir, exist_ok=True)
     remove_stale_temporaries(outs)
@@ -355,10 +355,9 @@ def run_many(db_path, log_paths, outdir, workers: int | None = None, csv: bool =
     if executor is None:
         n = max(1, min(len(logs), workers or os.cpu_count() or 1))
         executor = own = process_pool(n) if n > 1 else None   # workers die with this process
-    batch = 1
-    if hasattr(executor, "get_executor"):         # a dask.distributed.Client
+    batch = DASK_BATCH if hasattr(executor, "get_executor") else 1
+    if batch > 1:                                  # a dask.distributed.Client
         executor = executor.get_executor(pure=False)
-        batch = DASK_BATCH
     results: list = [None] * len(logs)
     try:
         for done, (i, item) in enumerate(_each_result(executor, job, logs, outs, batch), 1):
@@ -366,14 +365,19 @@ def run_many(db_path, log_paths, outdir, workers: int | None = None, csv: bool =
             if progress:
                 progress(done, len(logs), item)
             if item.error and item.error.startswith(DISK_FULL):
-                ok = sum(r is not None and r.status != FAILED for r in results)
-                raise DiskFullError(f"{item.output}: no space left on the disk ({ok} of {len(logs)} logs done, "
-                                    f"their results kept; the run stops). Free space in {outdir}, or write "
-                                    f"less: --every N, --outputs, --compression; a rerun resumes")
+                raise _stopped_by_full_disk(item, results, outdir)
     finally:
         if own is not None:
             own.shutdown(cancel_futures=True)
     return results
+
+
+def _stopped_by_full_disk(item: LogRun, results: list, outdir) -> DiskFullError:
+    """The error that stops a run whose results file ``item`` did not fit on the disk."""
+    ok = sum(r is not None and r.status != FAILED for r in results)
+    return DiskFullError(f"{item.output}: no space left on the disk ({ok} of {len(results)} logs done, "
+                         f"their results kept; the run stops). Free space in {outdir}, or write "
+                         f"less: --every N, --outputs, --compression; a rerun resumes")
 
 
 def local_dask_cluster(workers: int):

@@ -5,7 +5,7 @@ Inputs are two CSV files, so any diagnostic method can be scored:
 - the diagnosis, one row per engine and flight: ``engine``, ``flight`` (flight number in the
   numbering of the truth's ``onset``: the logs' ``flight_index``, else the 0-based position in
   time order), ``detected`` (0/1), ``class`` (the assigned class; ignored when not detected); optional
-  ``kind`` (step/drift), ``magnitude`` (efficiency change for components, relative bias for the
+  ``kind`` (step, drift, wear, stuck), ``magnitude`` (efficiency change for components, relative bias for the
   fuel-flow measurement) and ``bias`` (sensor units, for sensor faults);
 - the truth, one row per engine: ``engine``, ``class`` (``none`` for a healthy engine), ``onset``
   (first faulty flight, -1 for none), ``magnitude``, ``unit`` (``fraction`` or ``sigma``), ``bias``
@@ -69,6 +69,24 @@ def is_component(cls: str) -> bool:
                for part in cls.split("+")) and not is_sensor(cls)
 
 
+def _per_class(pairs, truth, engines_seen, latency, sizing) -> dict:
+    """Per true fault class: engines, engines detected, TPR and correct share of its fault
+    flights, median latency and sizing error (pairs: (true, assigned, engine, flight))."""
+    out = {}
+    for c in sorted({t["class"] for t in truth.values()} - {"none"}):
+        fl = [(a, b) for a, b, *_ in pairs if a == c]
+        engines = [e for e, t in truth.items() if t["class"] == c and e in engines_seen]
+        out[c] = {
+            "engines": len(engines),
+            "detected_engines": sum(e in latency for e in engines),
+            "tpr": _ratio(sum(b != "none" for _, b in fl), len(fl)),
+            "correct": _ratio(sum(a == b for a, b in fl if b != "none"), sum(b != "none" for _, b in fl)),
+            "latency_median": _median([latency[e] for e in engines if e in latency]),
+            "sizing_error_median": _median([sizing[e] for e in engines if e in sizing]),
+        }
+    return out
+
+
 def score(diagnosis_csv, truth_csv, min_component: float = 0.0, min_sensor_sigma: float = 0.0) -> dict:
     """Score ``diagnosis_csv`` against ``truth_csv`` (see the module docstring); returns a dict.
 
@@ -122,18 +140,6 @@ def score(diagnosis_csv, truth_csv, min_component: float = 0.0, min_sensor_sigma
     correct = sum(a == b for a, b in det_fault)
     sens = [(a, b) for a, b in det_fault if is_sensor(a)]
     sens_as_comp = sum(is_component(b) for _, b in sens)
-    per_class = {}
-    for c in sorted({t["class"] for t in truth.values()} - {"none"}):
-        fl = [(a, b) for a, b, *_ in pairs if a == c]
-        engines = [e for e, t in truth.items() if t["class"] == c and e in by_engine]
-        per_class[c] = {
-            "engines": len(engines),
-            "detected_engines": sum(e in latency for e in engines),
-            "tpr": _ratio(sum(b != "none" for _, b in fl), len(fl)),
-            "correct": _ratio(sum(a == b for a, b in fl if b != "none"), sum(b != "none" for _, b in fl)),
-            "latency_median": _median([latency[e] for e in engines if e in latency]),
-            "sizing_error_median": _median([sizing[e] for e in engines if e in sizing]),
-        }
     lat = list(latency.values())
     return {
         "engines": len(by_engine), "engine_flights": len(pairs),
@@ -147,7 +153,7 @@ def score(diagnosis_csv, truth_csv, min_component: float = 0.0, min_sensor_sigma
         "engines_detected": len(latency), "engines_undetected": len(undetected),
         "undetected": undetected,
         "sizing_error_median": _median(list(sizing.values())),
-        "per_class": per_class,
+        "per_class": _per_class(pairs, truth, set(by_engine), latency, sizing),
         "confusion": {"labels": labels, "counts": cm.tolist()},
     }
 
