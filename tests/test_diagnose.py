@@ -370,3 +370,24 @@ def test_wear_slower_than_the_fleets_is_not_a_fault():
     cfg = DiagnosisConfig(min_step=0.002, min_rate=0.02)
     rows = diagnose_engine(fleet[3], Sigma, cfg, wear_reference(fleet, Sigma, cfg))
     assert not any(r.detected for r in rows)
+
+
+def test_a_sensor_bias_that_goes_away_is_cleared_and_one_that_comes_back_is_intermittent():
+    """Sensor B biased by 2 units on flights 6-11 only (a repair at 12): a fault from 6, then
+    kind 'cleared' and not detected from 12 on. Biased again from 16: kind 'intermittent',
+    detected, with the first episode's onset, and so on every later flight, on or off."""
+    rng = np.random.default_rng(12)
+    S = synthetic_signatures()
+    sd = 1e-3
+    D = rng.normal(0, sd, (26, 6))
+    D[6:12] += S[:, 5] * 2.0
+    rows = diagnose_engine(series(D[:16], S), np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0))
+    assert all(r.detected and r.cls == "sensor:B" and r.kind == "step" and r.onset == 6 for r in rows[7:12])
+    assert all(not r.detected and r.kind == "cleared" and r.status == "cleared" and r.onset == 12
+               for r in rows[13:16])
+    D[16:19] += S[:, 5] * 2.0          # on again 16-18, off from 19
+    rows = diagnose_engine(series(D, S), np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0))
+    assert all(r.detected and r.cls == "sensor:B" and r.kind == "intermittent" and r.onset == 6
+               for r in rows[17:])
+    clean = diagnose_engine(series(rng.normal(0, sd, (26, 6)), S), np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0))
+    assert not any(r.detected or r.kind for r in clean)

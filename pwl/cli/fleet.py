@@ -157,11 +157,18 @@ def run_diagnose(args) -> int:
     for e, r in flagged.items():
         what = f"{r.kind} {readable_detail(r.detail, units)}" + {
             "drift": " per flight", "wear": " per flight beyond the fleet's normal wear"}.get(r.kind, "")
+        if r.kind == "intermittent":
+            what = f"intermittent (its bias came and went; last change {readable_detail(r.detail, units)})"
         after = f" (after {', '.join(r.earlier.split())}, still present)" if r.earlier else ""
         print(f"  {e}: {r.cls} from flight {r.onset}, {what}, confidence {r.confidence:.2f}{after}")
     by_engine: dict = {}
     for d in rows:
         by_engine.setdefault(d.engine, []).append(d)
+    gone = [(e, by_engine[e][-1]) for e in engines if by_engine[e][-1].kind == "cleared"]
+    if gone:
+        print(f"{len(gone)} engines whose sensor bias went away (a repair?):")
+        for e, r in gone:
+            print(f"  {e}: {r.cls} at flight {r.onset}, {readable_detail(r.detail, units)}")
     rec = [(e, r) for e in engines for r in recoveries(by_engine[e])]
     if rec:
         print(f"{len(rec)} recoveries (every efficiency up: a wash or a repair; diagnosed on a new baseline since):")

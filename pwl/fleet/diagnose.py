@@ -31,6 +31,8 @@ when nothing changed.
 - **Drift**: a ramp that wins is reported as kind ``drift`` with its rate per flight.
 - **Wear**: in a fleet, the whole-history ramp is tested against the fleet's normal wear
   (:func:`wear_reference`) instead of ``min_rate``: kind ``wear``, its rate beyond the fleet's.
+- **Sensor episodes**: a sensor bias that goes away is ``cleared`` (not a fault), one that comes
+  back is ``intermittent`` (:func:`_episodes`).
 - **Recovery**: a component step whose efficiencies all rise (a compressor wash, a repair) is
   not a fault: status and kind ``recovery``, ``detected`` 0. From its onset on the engine is
   diagnosed on a new baseline (the flights before it are left out), so that a later fault is
@@ -576,7 +578,8 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
     fidx = [f.order[1] for f in es.flights]
     number = np.array(fidx if min(fidx, default=-1) >= 0 and len(set(fidx)) == n else range(n), float)
     first = 0                  # the first flight of the current baseline (moved by a recovery)
-    found: list[tuple[float, str]] = []     # faults found: (onset flight number, class)
+    found: list[tuple[float, str, float]] = []   # faults found: (onset flight number, class, size)
+    steps: dict = {}                        # row index -> (class, onset) of the step it detected
     for k in range(n):
         r = es.flights[k]
         dec = Decision(es.engine, int(number[k]), r.label, r.source, "ok")
@@ -619,15 +622,44 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
             first = int(np.searchsorted(number, dec.onset))
         if dec.detected and dec.cls.startswith("sensor:") and _frozen(es, k, rowsok[0], dec.cls[7:]):
             dec.kind = "stuck"
-        dec.earlier = " ".join(f"{c}@{tau:g}" for tau, c in found if first <= tau < dec.onset)
         # a step found on two flights in a row with the same class and onset is a fault found:
         # later flights look for a new change after it (a second fault, a repair) measured from it
-        prev = rows[-1] if rows else None
-        if dec.detected and dec.kind in ("step", "stuck") and prev is not None and prev.detected and \
-                (prev.cls, prev.onset) == (dec.cls, dec.onset) and dec.onset not in [f[0] for f in found]:
-            found.append((dec.onset, dec.cls))
+        step = (dec.cls, dec.onset) if dec.detected and dec.kind in ("step", "stuck") else None
+        if step is not None and steps.get(len(rows) - 1) == step and dec.onset not in [f[0] for f in found]:
+            found.append((dec.onset, dec.cls, dec.magnitude))
+        steps[len(rows)] = step
+        _episodes(dec, [f for f in found if f[0] >= first])
+        episode = dec.kind in ("intermittent", "cleared")     # its own earlier steps are its story
+        dec.earlier = " ".join(f"{c}@{tau:g}" for tau, c, _ in found
+                               if first <= tau < dec.onset and not (episode and c == dec.cls))
         rows.append(dec)
     return rows
+
+
+def _episodes(dec: Decision, found: list) -> None:
+    """A sensor bias that goes away, or comes and goes: relabel a detected step of a sensor class
+    by that sensor's faults found before it (``found``: (onset, class, size)). The sensor's
+    story, its steps in time order, is read as on/off episodes: from off, a step turns the bias
+    on; a step of the opposite sign undoing at least half of it turns it off; another changes
+    its size. Off after one episode: kind ``cleared``, not detected (status ``cleared``: a
+    repair); after two or more, on or off: kind ``intermittent``, detected (a loose connector is
+    a fault also on the flights it reads right)."""
+    if not (dec.detected and dec.kind == "step" and dec.cls.startswith("sensor:")):
+        return
+    earlier = [(onset, size) for onset, c, size in found if c == dec.cls and onset < dec.onset]
+    story = [size for _, size in earlier] + [dec.magnitude]
+    level, episodes = 0.0, 0
+    for size in story:
+        if level == 0.0:
+            level, episodes = size, episodes + 1
+        elif np.sign(size) != np.sign(level) and abs(size) >= 0.5 * abs(level):
+            level = 0.0
+        else:
+            level += size
+    if episodes >= 2:      # onset: the first episode's; the size stays the last change's
+        dec.kind, dec.onset = "intermittent", int(earlier[0][0])
+    elif level == 0.0:
+        dec.detected, dec.kind, dec.status = 0, "cleared", "cleared"
 
 
 def recoveries(decisions: list[Decision]) -> list[Decision]:

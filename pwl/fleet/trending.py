@@ -119,7 +119,7 @@ class EngineTrend:
         for i, lab in enumerate(self.labels):
             d = self.decisions[i]
             verdict = f"{d.cls} {d.kind} since flight {d.onset}: {self.detail(d)}" \
-                if d.detected or d.kind == "recovery" else d.status
+                if d.detected or d.kind in ("recovery", "cleared") else d.status
             lines.append(f"{lab[:14]:<14}" + "".join(f"{100 * v:>8.2f}" for v in self.H[i]) + f"  {verdict}")
         lines.append(f"{'level':<14}" + "".join(f"{100 * v:>8.2f}" for v in self.level))
         lines.append(f"{'slope/flight':<14}" + "".join(f"{100 * v:>8.3f}" for v in self.slope))
@@ -136,6 +136,9 @@ class EngineTrend:
             if d.earlier:
                 lines.append(f"  after an earlier fault still present: {', '.join(d.earlier.split())} "
                              "(class@onset flight)")
+        elif d.kind == "cleared":
+            lines.append(f"no fault: the {d.cls} bias found earlier went away at flight {d.onset} (a repair?); "
+                         f"{self.detail(d)}")
         else:
             lines.append(f"no fault detected (p = {d.p_value:.3g})" if np.isfinite(d.p_value) else
                          f"no fault detected ({d.status})")
