@@ -240,3 +240,18 @@ def test_engines_named_from_file_names_and_mixed_engines_warned(scenario, tmp_pa
     one = [dataclasses.replace(r, engine="flat") for r in scenario["records"] if r.engine in ("ESN001", "ESN005")]
     (line,) = mixed_engines(one)
     assert line.startswith(f"engine flat: {FLIGHTS} of its {2 * FLIGHTS} flights repeat another's flight time")
+
+
+def test_trend_against_its_fleet_equals_the_fleet_diagnosis(scenario, capsys):
+    """pwl trend ENGINE --fleet RESULTS judges the engine as pwl fleet diagnose does (the fleet's
+    scatter; its wear, with enough engines): every flight's decision equals the fleet's."""
+    db = GainDatabase.open(DB)
+    for eng in ("ESN001", "ESN004", "ESN005"):
+        recs = [r for r in scenario["records"] if r.engine == eng]
+        tr = engine_trend(recs, db, fleet=scenario["records"])
+        fleet_rows = scenario["rows"][eng]
+        assert [(d.detected, d.cls, d.kind, d.onset) for d in tr.decisions] == \
+            [(d.detected, d.cls, d.kind, d.onset) for d in fleet_rows]
+    res = os.path.join(scenario["root"], "results")
+    assert main(["trend", os.path.join(res, "ESN004"), "--fleet", res]) == 1
+    assert "FAULT: sensor:T48" in capsys.readouterr().out

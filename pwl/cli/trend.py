@@ -8,6 +8,10 @@ def add_arguments(p):
     p.add_argument("results", nargs="+",
                    help="results files (*.estimates.h5) of pwl run, or folders holding them (walked recursively)")
     p.add_argument("--database", help="gain database (default: the one recorded in the results)")
+    p.add_argument("--fleet", action="append", metavar="RESULTS",
+                   help="results of the engine's fleet (a folder or a file; repeatable): judge the engine "
+                        "against the fleet's flight-to-flight scatter and normal wear, as pwl fleet "
+                        "diagnose does (default: none, the engine against its own scatter)")
     p.add_argument("--plot", help="PNG file of the health trends, needs matplotlib (default: none; "
                                   "with several engines, one file each: NAME_ENGINE.png)")
 
@@ -29,10 +33,11 @@ def run(args) -> int:
     db = GainDatabase.open(database_of(records, args.database))
     for line in mixed_engines(records):
         print(f"pwl: warning: {line}", file=sys.stderr)
+    fleet = read_flights(results_files(args.fleet))[0] if args.fleet else None
     engines = group_engines(records)
     status = 0
     for i, (eng, recs) in enumerate(engines.items()):
-        tr = engine_trend(recs, db)
+        tr = engine_trend(recs, db, fleet=fleet)
         print(("\n" if i else "") + tr.table())
         if args.plot:
             path = args.plot if len(engines) == 1 else args.plot.replace(".png", f"_{eng}.png")

@@ -22,8 +22,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..database import GainDatabase
-from .diagnose import (DiagnosisConfig, Decision, FlightRecord, diagnose_engine, engine_series, recoveries,
-                       noise_covariance, prepare)
+from .diagnose import (DiagnosisConfig, Decision, FlightRecord, diagnose_engine, engine_series, group_engines,
+                       noise_covariance, prepare, recoveries, wear_reference)
 
 
 @dataclass
@@ -127,7 +127,8 @@ class EngineTrend:
         d = self.latest
         if d.detected:
             rate = d.kind in ("drift", "wear")
-            size = (f"{'rate' if rate else 'size'} {100 * d.magnitude:+.2f} "
+            what = "rate" if rate else ("last change" if d.kind == "intermittent" else "size")
+            size = (f"{what} {100 * d.magnitude:+.2f} "
                     f"+- {100 * d.magnitude_std:.2f} %{'/flight' if rate else ''}")
             if np.isfinite(d.bias):
                 size += f", bias {d.bias:+.4g} (sensor units)"
@@ -144,8 +145,8 @@ class EngineTrend:
                          f"no fault detected ({d.status})")
             if d.p_value < DiagnosisConfig.alpha:
                 lines.append("  a change is significant but smaller than the sizes reported (min_step, and "
-                             "min_rate per flight for wear): normal wear? An engine's wear is judged "
-                             "against its fleet's by pwl fleet diagnose")
+                             "min_rate per flight for wear): normal wear? Judge the engine against its "
+                             "fleet: pwl trend ... --fleet FLEET_RESULTS")
         for r in recoveries(self.decisions):
             lines.append(f"RECOVERY (maintenance?): {r.cls} at flight {r.onset}, size {100 * r.magnitude:+.2f} "
                          f"+- {100 * r.magnitude_std:.2f} %; {self.detail(r)}; diagnosed on a new baseline since")
@@ -153,12 +154,25 @@ class EngineTrend:
 
 
 def engine_trend(records: list[FlightRecord], db: GainDatabase,
-                 cfg: DiagnosisConfig = DiagnosisConfig()) -> EngineTrend:
-    """Trend and diagnosis of one engine's flights (any order: they are sorted by time)."""
-    sig, centers = prepare(records, db)
+                 cfg: DiagnosisConfig = DiagnosisConfig(), fleet: list[FlightRecord] | None = None) -> EngineTrend:
+    """Trend and diagnosis of one engine's flights (any order: they are sorted by time).
+
+    ``fleet``: the flights of the engine's fleet (may include its own). Then the engine is judged
+    as ``pwl fleet diagnose`` judges it: against the fleet's flight-to-flight scatter and its
+    normal wear (:func:`pwl.fleet.diagnose.wear_reference`). Alone, against its own scatter (which
+    holds an intermittent fault's toggles) and ``min_rate`` for wear."""
+    mine = {r.source for r in records}
+    others = [r for r in (fleet or []) if r.source not in mine]
+    sig, centers = prepare(records + others, db)
     es = engine_series(records, sig, len(centers))
-    Sigma = noise_covariance([es], cfg.floor)
-    dec = diagnose_engine(es, Sigma, cfg)
+    wear = None
+    if others:
+        series = [es] + [engine_series(v, sig, len(centers)) for v in group_engines(others).values()]
+        Sigma = noise_covariance(series, cfg.floor)
+        wear = wear_reference(series, Sigma, cfg) if cfg.wear else None
+    else:
+        Sigma = noise_covariance([es], cfg.floor)
+    dec = diagnose_engine(es, Sigma, cfg, wear)
     H = es.h_hat
     ok = np.all(np.isfinite(H), axis=1)
     x = np.flatnonzero(ok).astype(float)
