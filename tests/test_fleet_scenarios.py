@@ -69,7 +69,7 @@ def scenario(tmp_path_factory):
             os.makedirs(os.path.dirname(out), exist_ok=True)
             est.run_file(log, out)
             records.append(read_flight(out))
-    rows, Sigma, channels, centers = diagnose_fleet(records, GainDatabase.open(DB))
+    rows, Sigma, channels, centers, _ = diagnose_fleet(records, GainDatabase.open(DB))
     by = {}
     for r in rows:
         by.setdefault(r.engine, []).append(r)

@@ -139,7 +139,7 @@ def run_diagnose(args) -> int:
     if args.no_pairs:
         cfg = replace(cfg, pairs=False)
     db = GainDatabase.open(db_path)
-    rows, Sigma, channels, centers = diagnose_fleet(records, db, cfg)
+    rows, Sigma, channels, centers, wear = diagnose_fleet(records, db, cfg)
     write_diagnosis(rows, args.output)
     engines = sorted({r.engine for r in rows})
     latest = {r.engine: r for r in rows}            # rows are in time order per engine
@@ -150,6 +150,9 @@ def run_diagnose(args) -> int:
         print(f"  regime {j}: steady near " + ", ".join(f"{n} {v:.4g}" for n, v in zip(db.names["p"], c)))
     print("flight-to-flight scatter of the snapshot deviations (1 sigma, %): " +
           ", ".join(f"{c} {100 * s:.3f}" for c, s in zip(channels, np.sqrt(np.diag(Sigma)))))
+    if wear is not None:
+        print(f"normal wear of the fleet (median over {wear.engines} engines +- robust spread, % per flight): " +
+              ", ".join(f"{n} {100 * m:+.4f} +- {100 * s:.4f}" for n, m, s in zip(wear.names, wear.median, wear.spread)))
     nosnap = sum(r.status == "no steady snapshot" for r in rows)
     if nosnap:
         print(f"{nosnap} flights without a steady snapshot (not diagnosed)")

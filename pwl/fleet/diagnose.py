@@ -326,9 +326,11 @@ def noise_covariance(series: list[EngineSeries], floor: float) -> np.ndarray:
 @dataclass
 class WearReference:
     """The fleet's normal wear: per health parameter (``columns``, indices into the signature
-    columns) the median rate over the engines and its robust spread (fraction per flight)."""
+    columns, and their ``names``) the median rate over the engines and its robust spread
+    (fraction per flight)."""
 
     columns: np.ndarray
+    names: list[str]
     median: np.ndarray
     spread: np.ndarray
     engines: int
@@ -371,7 +373,8 @@ def wear_reference(series: list[EngineSeries], Sigma: np.ndarray,
         return None
     R = np.array(rates)
     med = np.median(R, axis=0)
-    return WearReference(cols, med, 1.4826 * np.median(np.abs(R - med), axis=0), len(rates))
+    return WearReference(cols, [series[0].columns[j] for j in cols], med,
+                         1.4826 * np.median(np.abs(R - med), axis=0), len(rates))
 
 
 @dataclass
@@ -697,9 +700,9 @@ def prepare(records: list[FlightRecord], db: GainDatabase) -> tuple[Signatures, 
 
 
 def diagnose_fleet(records: list[FlightRecord], db: GainDatabase,
-                   cfg: DiagnosisConfig = DiagnosisConfig()) -> tuple[list[Decision], np.ndarray, list[str], np.ndarray]:
+                   cfg: DiagnosisConfig = DiagnosisConfig()) -> tuple:
     """Every engine of ``records``; returns (decisions, Sigma, deviation channel names, regime
-    centres (R, np))."""
+    centres (R, np), the fleet's normal wear (:class:`WearReference`, or None))."""
     sig, centers = prepare(records, db)
     series = [engine_series(v, sig, len(centers)) for v in group_engines(records).values()]
     Sigma = noise_covariance(series, cfg.floor)
@@ -707,7 +710,7 @@ def diagnose_fleet(records: list[FlightRecord], db: GainDatabase,
     rows = []
     for es in series:
         rows += diagnose_engine(es, Sigma, cfg, wear)
-    return rows, Sigma, series[0].channels, centers
+    return rows, Sigma, series[0].channels, centers, wear
 
 
 def write_diagnosis(rows: list[Decision], path) -> None:
