@@ -165,6 +165,7 @@ class Stream:
         sig = (numba.typeof(self._st), types.Array(types.float64, 1, "A"))   # any strides
         _stream_step.compile(sig)
         self._call = _stream_step.overloads[sig].entry_point
+        self._step = self.step = self._fast_step()
         for o, a in self.outputs.items():
             setattr(self, o, a[0])
 
@@ -186,14 +187,24 @@ class Stream:
         EnvelopeError
             The operating point left the grid and the database's policy is ``error``.
         """
-        if not (type(row) is np.ndarray and row.dtype is _F8 and row.ndim == 1 and len(row) == self._n):
-            row = self._as_row(row)
-        f = self._call(self._st, row)
-        if f & self._stop:
-            from .estimator import EnvelopeError
-            raise EnvelopeError("stream: operating point outside the database grid and the "
-                                "database's out-of-range policy is 'error'")
-        return f
+        return self._step(row)
+
+    def _fast_step(self):
+        """:meth:`step` as a closure over everything it reads: no attribute lookup per call
+        (0.1 us of a 1.4 us step). The instance's ``step`` is this closure."""
+        call, st, n, stop, as_row, array, f8 = self._call, self._st, self._n, self._stop, self._as_row, np.ndarray, _F8
+
+        def step(row):
+            if not (type(row) is array and row.dtype is f8 and row.ndim == 1 and len(row) == n):
+                row = as_row(row)
+            f = call(st, row)
+            if f & stop:
+                from .estimator import EnvelopeError
+                raise EnvelopeError("stream: operating point outside the database grid and the "
+                                    "database's out-of-range policy is 'error'")
+            return f
+        step.__doc__ = Stream.step.__doc__
+        return step
 
     def _as_row(self, row) -> np.ndarray:
         """``row`` as the float64 vector step() reads, or a UsageError naming what is wrong."""
