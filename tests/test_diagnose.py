@@ -391,3 +391,16 @@ def test_a_sensor_bias_that_goes_away_is_cleared_and_one_that_comes_back_is_inte
                for r in rows[17:])
     clean = diagnose_engine(series(rng.normal(0, sd, (26, 6)), S), np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0))
     assert not any(r.detected or r.kind for r in clean)
+
+
+@pytest.mark.parametrize("onset", [1, 2])
+def test_a_fault_at_the_second_or_third_flight_is_a_step_with_its_onset(onset):
+    """Sensor B biased from flight 1 (or 2): a step from that flight once testing starts, not a
+    drift from a later one (steps were tested only after n_base flights)."""
+    rng = np.random.default_rng(3)
+    S = synthetic_signatures()
+    sd = 1e-3
+    D = rng.normal(0, sd, (15, 6))
+    D[onset:] += S[:, 5] * 2.0
+    rows = diagnose_engine(series(D, S), np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0))
+    assert all(r.detected and r.cls == "sensor:B" and r.kind == "step" and r.onset == onset for r in rows[3:])

@@ -69,7 +69,7 @@ class DiagnosisConfig:
     """Settings of the detector (documented in docs/diagnostics.md).
 
     alpha: family-wise false-alarm probability per engine and flight; kappa: cost per free
-    parameter in isolation; n_base: fault-free flights needed before a step can be tested;
+    parameter in isolation; n_base: testing starts with n_base + 1 flights (a change may be at any flight but the first);
     min_step: smallest change reported (norm of the relative deviation change); min_rate: smallest
     drift reported (per flight, same norm); floor: smallest flight-to-flight scatter assumed per
     channel (relative); wear_engines, wear_flights: a fleet of at least wear_engines engines
@@ -554,7 +554,7 @@ def _stages(D, Wt, S, t, bank, cfg, wear, steps):
                  ("ramp", fit(new, "ramp", trend=cfg.wear, steps=steps))],
                 [("step", fit(np.array([float(steps[-1])]), "step", trend=cfg.wear, steps=steps[:-1]))])
     # 1. a step or a drift that starts after the first flights, off the engine's wear line
-    stage1 = [("step", fit(t[cfg.n_base:], "step", trend=cfg.wear)), ("ramp", fit(t[1:], "ramp", trend=cfg.wear))]
+    stage1 = [("step", fit(t[1:], "step", trend=cfg.wear)), ("ramp", fit(t[1:], "ramp", trend=cfg.wear))]
     # 2. with the wear line as nuisance, wear faster than normal is tested on its own: the
     #    engine's whole-history rate (a ramp from the first flight, level only), against the
     #    fleet's normal wear when there is a fleet
