@@ -16,7 +16,7 @@ run's bit for bit (but where a scheduling channel or theta/delta jumps by more t
 span in one sample: unable to see ahead, the stream holds the channel until it comes back or for
 64 samples, :func:`_hold_jumps`, where the batch holds only the runs that do come back). A step
 costs about 1.3 us from Python against 0.45 us per sample in batch on the demo database (``pwl
-bench stream``): numba's call from Python (0.33 us), the row's check (0.2 us), the step loop
+bench stream``): numba's call from Python (0.33 us), the row's check (0.1 us), the step loop
 for one row (0.7 us; the kernel's records go by reference, :mod:`pwl.byref`). Samples that
 arrive in packets (a data bus, a file being written) run at batch speed through
 ``Estimator.run_arrays``, which continues from the current state. The stream

@@ -323,6 +323,15 @@ def noise_covariance(series: list[EngineSeries], floor: float) -> np.ndarray:
     return C
 
 
+def flight_numbers(es: EngineSeries) -> np.ndarray:
+    """The flights' numbers (n,): the logs' flight_index when every flight has a distinct one (a
+    missing flight then leaves a gap, and onsets and rates are in the logs' numbering), else
+    their positions."""
+    fidx = [f.order[1] for f in es.flights]
+    n = len(fidx)
+    return np.array(fidx if min(fidx, default=-1) >= 0 and len(set(fidx)) == n else range(n), float)
+
+
 @dataclass
 class WearReference:
     """The fleet's normal wear: per health parameter (``columns``, indices into the signature
@@ -361,10 +370,7 @@ def wear_reference(series: list[EngineSeries], Sigma: np.ndarray,
         if ok.sum() < cfg.wear_flights:
             continue
         D = es.D[ok]
-        t = np.arange(es.D.shape[0], dtype=float)[ok]
-        fidx = [f.order[1] for f in es.flights]
-        if min(fidx, default=-1) >= 0 and len(set(fidx)) == len(fidx):
-            t = np.array(fidx, float)[ok]
+        t = flight_numbers(es)[ok]
         tc = t - t.mean()
         slope = tc @ D / (tc @ tc)
         Sh = np.nanmean(es.S[ok], axis=0)[:, cols]
@@ -576,10 +582,7 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
     bank_all = hypotheses(es.columns, cfg.pairs)
     rows = []
     present = np.isfinite(es.D)
-    # flight numbers: the logs' flight_index when every flight has a distinct one (a missing
-    # flight then leaves a gap, and onsets and rates are in the logs' numbering), else positions
-    fidx = [f.order[1] for f in es.flights]
-    number = np.array(fidx if min(fidx, default=-1) >= 0 and len(set(fidx)) == n else range(n), float)
+    number = flight_numbers(es)
     first = 0                  # the first flight of the current baseline (moved by a recovery)
     found: list[tuple[float, str, float]] = []   # faults found: (onset flight number, class, size)
     steps: dict = {}                        # row index -> (class, onset) of the step it detected
