@@ -375,6 +375,14 @@ class GainDatabase:
         return np.abs(np.linalg.eigvals(closed.reshape((-1,) + closed.shape[-2:]))).max(axis=-1) \
             .reshape(self.dyn_grid.shape)
 
+    def settling_time(self, taus: float = 3.0) -> float:
+        """``taus`` time constants (s) of the slowest error dynamics over the dynamics grid (the
+        stored gains, :meth:`gain_radius`): how long after its start the filter's estimates are
+        still converging from the initial tuners (e^-3 = 5 % of the initial error left at 3).
+        Demo database: time constants 3.0-9.1 s, 27 s at 3."""
+        rho = float(np.max(self.gain_radius()))
+        return taus * self.dt / -np.log(rho) if 0.0 < rho < 1.0 else 0.0
+
     def check_gains(self) -> None:
         """Every stored gain gives strictly stable error dynamics (the builder's own check, redone
         at every open: a gain changed after the build is refused, naming the node)."""

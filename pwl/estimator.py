@@ -14,9 +14,9 @@ import numpy as np
 from .database import GainDatabase
 from .grid import Axis, Grid
 from .h5io import atomic_h5
-from .logs import (Log, LogError, check_time, read_header, read_log, read_rows, resample, sample_interval,
+from .logs import (Log, LogError, check_time, read_header, read_log, read_rows, resample, rows_missing, sample_interval,
                    time_gaps)
-from .runtime import (FLAG_DYN_OUTSIDE, FLAG_HEALTH_HELD, FLAG_NOT_STARTED, FLAG_TRIM_OUTSIDE, HEALTH_HOLD_RATIO,
+from .runtime import (FLAG_DYN_OUTSIDE, FLAG_HEALTH_HELD, FLAG_NOT_STARTED, FLAG_SETTLING, FLAG_TRIM_OUTSIDE, HEALTH_HOLD_RATIO,
                       MISFIT_SIGMAS, STUCK_AFTER, STUCK_SIGMAS, Bias, Filter, Inputs, Outputs, PackedModel, blank_implausible,
                       filter_loop, report, screen, spike_mask, burst_mask, state_layout)
 from .results import LOG_ATTRS, Result, append_rows, init_result_file
@@ -119,6 +119,11 @@ class Estimator:
         deviations since the value froze -- or at once if it was a noisy signal (its changes
         averaged more than half a standard deviation) and the other sensors still change -- it is
         left out of the update (FLAG_STUCK) until its value changes. ``float("inf")``: never.
+    settle : float, optional
+        Seconds from the filter's first valid sample during which its estimates are flagged
+        FLAG_SETTLING (converging from q0: not trusted, not in the snapshots' estimates); default 3 time constants
+        of the database's slowest error dynamics (:meth:`GainDatabase.settling_time`, 27 s on
+        the demo database); 0: never.
 
     State persists across ``run`` / ``step`` calls until :meth:`reset` (one flight = reset,
     then run).
@@ -136,7 +141,7 @@ class Estimator:
     def __init__(self, db, mode: str = "steady", *, q0=None, bias: dict | None = None,
                  health_std: bool = True, resample: bool = False, channel_map=None,
                  health_hold: float = HEALTH_HOLD_RATIO, misfit_sigmas: float = MISFIT_SIGMAS,
-                 stuck_after: float = STUCK_AFTER):
+                 stuck_after: float = STUCK_AFTER, settle: float | None = None):
         if mode not in MODES:
             raise UsageError(f"estimator mode {mode!r}: one of {', '.join(MODES)}")
         self.mode = mode
@@ -169,14 +174,17 @@ class Estimator:
         self.ranges = {c: (lo, hi) for c, (_, lo, hi) in lc.items()}
         self._limits = self._column_limits()
         self._VT = np.ascontiguousarray(self.db.tuner["V_pinv"].T)
-        if not (misfit_sigmas > 0 and stuck_after >= 0):
-            raise UsageError(f"misfit_sigmas {misfit_sigmas} must be > 0 and stuck_after {stuck_after} >= 0 s")
+        default_settle = self.db.settling_time()
+        self.settle = default_settle if settle is None else float(settle)
+        if not (misfit_sigmas > 0 and stuck_after >= 0 and 0 <= self.settle < np.inf):
+            raise UsageError(f"misfit_sigmas {misfit_sigmas} must be > 0, stuck_after {stuck_after} >= 0 s "
+                             f"and settle {self.settle} finite and >= 0 s")
         self._checks = {"hold": (health_hold, HEALTH_HOLD_RATIO), "misfit": (misfit_sigmas, MISFIT_SIGMAS),
-                        "stuck": (stuck_after, STUCK_AFTER)}   # (value, default)
+                        "stuck": (stuck_after, STUCK_AFTER), "settle": (self.settle, default_settle)}   # (value, default)
         sd = self._sensor_sd()
         stuck_n = min(np.ceil(stuck_after / self.db.dt), 2.0 ** 62)
         self._model = self.pm.record(self.db.tuner["V_pinv"], np.stack([misfit_sigmas * sd, STUCK_SIGMAS * sd, sd]),
-                                     int(stuck_n))
+                                     int(stuck_n), int(np.ceil(self.settle / self.db.dt)))
         self._grids = self.pm.grids(self.db)
         hr = db.attrs.get("health_ranges") or {}
         self._h_range = tuple(np.array([hr.get(h, (-np.inf, np.inf))[i] for h in db.names["h"]],
@@ -461,8 +469,10 @@ class Estimator:
 
     def _warn_absent(self, log: Log) -> None:
         absent = self.absent_sensors(log)
+        text = [log.attrs["text_columns"][c] for c in absent if c in log.attrs.get("text_columns", {})]
         if absent:
-            warnings.warn(f"{log.path}: no {', '.join(map(repr, absent))} channel: run without "
+            warnings.warn(f"{log.path}: no {', '.join(map(repr, absent))} channel"
+                          f"{''.join(f' ({t})' for t in text)}: run without "
                           f"{'that sensor' if len(absent) == 1 else 'those sensors'} (missing on "
                           "every sample; a channel map renames a channel logged under another name)",
                           PwlWarning, stacklevel=3)
@@ -641,6 +651,10 @@ class Estimator:
 
     #: relative difference between a log's sample interval and the database's dt that is refused
     DT_TOLERANCE = 0.01
+    #: a log at the database's dt lacking more than this share of its rows runs on the uniform
+    #: grid (the filter predicts through the missing rows, :meth:`_run_resampled`); below, one
+    #: filter step per row (a missing row shortens one step of the dynamics)
+    MISSING_ROWS = 0.01
 
     def _without_spikes(self, log: Log) -> Log:
         """The log with the spikes of its inputs, scheduling channels and theta/delta
@@ -659,12 +673,17 @@ class Estimator:
         return Log(log.time, chans, log.units, log.truth, log.truth_units, log.attrs, log.path)
 
     def _check_interval(self, log: Log) -> bool:
-        """Whether the log needs resampling: False if it is sampled at the database's dt (within
-        :attr:`DT_TOLERANCE`); True when not and the estimator was made with ``resample=True``;
-        else a :class:`LogError`: the discrete matrices and gains hold for one step size only."""
+        """Whether the log runs on the database's uniform time grid (:meth:`_run_resampled`):
+        False if it is sampled at the database's dt (median step within :attr:`DT_TOLERANCE`)
+        with at most :attr:`MISSING_ROWS` of its rows missing; True with more missing (a recorder
+        that drops rows: one filter step per row would run the dynamics up to several times too
+        fast), or at another interval when the estimator was made with ``resample=True``; else a
+        :class:`LogError`: the discrete matrices and gains hold for one step size only."""
         dt, want = sample_interval(log.time), self.db.dt
-        if not np.isfinite(dt) or abs(dt / want - 1.0) <= self.DT_TOLERANCE:
+        if not np.isfinite(dt):
             return False
+        if abs(dt / want - 1.0) <= self.DT_TOLERANCE:    # rows missing: no rate change, no opt-in
+            return rows_missing(log.time, want) > self.MISSING_ROWS * len(log)
         # a step that is a time unit's factor times dt (a time column in ms read as s) is refused
         # even with resample, which would make 1000x the samples out of nothing
         for unit, (quantity, seconds, _) in UNITS.items():
@@ -704,8 +723,10 @@ class Estimator:
         if "resampled_from" in log.attrs:
             rec["resampled_from_dt"] = float(log.attrs["resampled_from"])
             rec["time_gaps"], rec["longest_gap_s"] = log.attrs["time_gaps"], log.attrs["longest_gap_s"]
+            rec["rows_missing"] = log.attrs["rows_missing"]
         else:
             rec["time_gaps"], rec["longest_gap_s"] = time_gaps(log.time)
+            rec["rows_missing"] = rows_missing(log.time, self.db.dt)
         return rec
 
     @property
@@ -768,9 +789,12 @@ class Estimator:
             p[~np.all((sched >= lim[0]) & (sched <= lim[1]), axis=1)] = np.nan   # implausible: no point
         outside = (res.flags & (FLAG_TRIM_OUTSIDE | FLAG_DYN_OUTSIDE | FLAG_NOT_STARTED)) != 0
         outs = {o: res.outputs[o] for o in SNAPSHOT_OUTPUTS}
-        held = (res.flags & FLAG_HEALTH_HELD) != 0     # not estimated there: no snapshot value
-        for o in ("h_hat", "q_hat"):
-            outs[o] = np.where(held[:, None], np.nan, outs[o]) if held.any() else outs[o]
+        # no snapshot value of what was not estimated there: health held, or any estimate while
+        # the filter settles (the window's logged channels count: the diagnosis reads those)
+        settling = (res.flags & FLAG_SETTLING) != 0
+        held = settling | ((res.flags & FLAG_HEALTH_HELD) != 0)
+        for o, no in (("h_hat", held), ("q_hat", held), ("z_hat", settling)):
+            outs[o] = np.where(no[:, None], np.nan, outs[o]) if no.any() else outs[o]
         acc.add(start, res.time, raw, p, outs, outside)
 
     def step(self, sample: dict) -> dict:

@@ -95,6 +95,8 @@ class Log:
                 if name in absent_ok:
                     out[:, j] = np.nan
                     continue
+                if name in self.attrs.get("text_columns", {}):
+                    raise LogError(self.attrs["text_columns"][name])
                 raise LogError(f"{self.path}: channel {name!r} is missing "
                                f"(log has: {', '.join(sorted(self.channels))})")
             out[:, j] = self.channels[name][rows]
@@ -317,6 +319,16 @@ def time_gaps(time) -> tuple[int, float]:
     return int(g.size), float((time[g + 1] - time[g]).max()) if g.size else 0.0
 
 
+def rows_missing(time, dt: float) -> int:
+    """How many rows a log sampled every ``dt`` s lacks between its samples, gaps
+    (:func:`gap_starts`) aside: a recorder that drops rows leaves steps of 2, 3, ... dt."""
+    step = np.diff(time)
+    if not step.size:
+        return 0
+    step = step[step <= GAP_STEPS * np.median(step)]
+    return int(np.sum(np.maximum(np.rint(step / dt) - 1.0, 0.0)))
+
+
 @dataclass
 class Resampled:
     """A log on a uniform time grid (:func:`resample`) and which of its rows hold information.
@@ -326,7 +338,7 @@ class Resampled:
     log : Log
         Every channel and truth interpolated linearly onto ``t0 + k dt`` (a NaN sample spoils its
         neighbours' interval only); attrs ``dt``, ``resampled_from`` (the log's median step, s),
-        ``time_gaps`` and ``longest_gap_s``.
+        ``rows_missing`` (:func:`rows_missing` at dt), ``time_gaps`` and ``longest_gap_s``.
     measured : ndarray (m,) bool
         The rows nearest to a logged sample (within dt/2): where a measurement exists. The
         others lie between samples of a slower log; their sensor values are interpolations
@@ -356,7 +368,7 @@ def resample(log: Log, dt: float) -> Resampled:
         in_gap |= (t > time[g]) & (t < time[g + 1])
     count, longest = time_gaps(time)
     attrs = {**log.attrs, "dt": dt, "resampled_from": sample_interval(time), "time_gaps": count,
-             "longest_gap_s": longest}
+             "longest_gap_s": longest, "rows_missing": rows_missing(time, dt)}
     return Resampled(Log(t, interp(log.channels), dict(log.units), interp(log.truth),
                          dict(log.truth_units), attrs, log.path), measured, in_gap & ~measured)
 
@@ -532,8 +544,9 @@ def _from_columns(path, names, units, data, time=None, time_unit="", keep=None) 
     or durations). ``time``: the time column (default: found by :data:`TIME_NAMES`) and
     ``time_unit`` (a channel map's); ``keep``: the columns to read -> where a channel map names
     them (default all; the others are dropped unread). Columns ``truth.<name>`` are truth
-    channels. LogError on a missing or ambiguous time column, duplicate names, non-numeric
-    values, a column of another length."""
+    channels. Without ``keep``, a column mostly of text is left out (``attrs["text_columns"]``:
+    name -> why). LogError on a missing or ambiguous time column, duplicate names, non-numeric
+    values in a kept column, a column of another length."""
     time = time or _find_time(path, names)
     if time is None:
         raise LogError(f"{path}: no 'time' column (one named {', '.join(TIME_NAMES)} in any case, "
@@ -554,7 +567,15 @@ def _from_columns(path, names, units, data, time=None, time_unit="", keep=None) 
     for i in wanted:
         if i == it:
             continue
-        v, n_text = _numeric(path, names[i], _vector(path, names[i], data[i]), text_as_missing=True)
+        try:
+            v, n_text = _numeric(path, names[i], _vector(path, names[i], data[i]), text_as_missing=True)
+        except LogError as e:
+            if keep is not None:
+                raise
+            # a text column (flight phase, status) that no channel map asked for: left out; a
+            # channel the estimator needs is then refused as text by Log.require
+            attrs.setdefault("text_columns", {})[names[i]] = str(e)
+            continue
         if n_text:
             attrs.setdefault("non_numeric", {})[names[i]] = n_text
         if v.size != seconds.size:

@@ -68,6 +68,10 @@ FLAG_STUCK = 1024         # a sensor's value has not changed for STUCK_AFTER sec
 STUCK_SIGMAS = 4.0
 STUCK_AFTER = 2.0
 STUCK_ROWS = 7            # the stuck detector's record per sensor in the filter state (_stuck)
+FLAG_SETTLING = 2048      # within the filter's settling time of its first valid sample
+                          # (Model.settle_n steps): the estimates are still converging from q0 and
+                          # the trims (Estimator(settle=...): 3 time constants of the database's
+                          # slowest error dynamics); counted, not trusted (pwl.results.trusted)
 NOISY_CHANGES = 0.9       # a noisy signal changes on at least this fraction of its samples
 
 
@@ -140,6 +144,7 @@ class Model(NamedTuple):
     gate: np.ndarray       # (3, ny) misfit gate, stuck gate and sensor noise (standard deviation),
                            # fractions of the prediction
     stuck_n: int           # samples a sensor's value must repeat before the stuck gate applies
+    settle_n: int          # steps from the first valid sample flagged FLAG_SETTLING
     ko_tab: np.ndarray     # (dyn nodes * ny, ny * na) sensor-out gains, or (1, 0)
     ko_avail: np.ndarray   # int64 (dyn nodes * ny,) 0 none, 1 gain, 2 gain and health held
     sub_tab: np.ndarray    # (dyn nodes, na*na + ny*ny) steady a-priori P and R, row-major: the
@@ -270,7 +275,8 @@ def block_layout(nx, nu, ny, nz, nq):
 @njit(cache=True, nogil=True)
 def state_layout(nx, nq, nu, ns, ny):
     """Offsets in the filter state vector [x_abs (nx), q (nq), u_last (nu), s_last (ns),
-    theta_last, delta_last, the stuck detector's sensor record (7 x ny, :func:`_stuck`), started]
+    theta_last, delta_last, the stuck detector's sensor record (7 x ny, :func:`_stuck`), steps since
+    the first valid sample (0: not started)]
     and its size: (ox, oq, ou, osl, oth, ode, oyl, ost, size)."""
     ou = nx + nq
     osl = ou + nu
@@ -352,7 +358,7 @@ def _interpolate(io, model, grids, filt, w, k, osl, ost, cs):
     flags = 0
     for j in range(w.p.shape[0]):
         i = model.s_state[j]
-        if i >= 0 and not np.isfinite(io.S[k, j]) and filt.state[ost] == 1.0:
+        if i >= 0 and not np.isfinite(io.S[k, j]) and filt.state[ost] != 0.0:
             v = filt.state[i] * _factor(model, w, i) * model.s_scale[j]   # the estimate, physical
         else:
             v = filt.state[_u(osl + j)] * model.s_scale[j]
@@ -708,7 +714,9 @@ def step_loop(kern):
         if first:  # start at trim on the first valid sample
             for j in range(nx):
                 state[ox + j] = w.tw[j]
-            state[ost] = 1.0
+        state[ost] += 1.0
+        if state[ost] <= model.settle_n:
+            flags |= FLAG_SETTLING
         if model.online:
             _online_propagate(model, filt, w, first, m, oA, oQ, nx, na)
         _time_update(model, state, w, oA, oB, nx, nu, nq, ou, tu)
@@ -1118,10 +1126,10 @@ class PackedModel:
         nx, nu, ny, nz, nq, nh = (int(d) for d in self.dims)
         return int(state_layout(nx, nq, nu, len(self.schedule_channels), ny)[-1])
 
-    def record(self, V_pinv: np.ndarray, gate: np.ndarray, stuck_n: int) -> Model:
+    def record(self, V_pinv: np.ndarray, gate: np.ndarray, stuck_n: int, settle_n: int) -> Model:
         """The kernel's :class:`Model` record: these tables, with V_pinv (nh, nq), the misfit gate,
-        stuck gate and sensor noise (3, ny; :attr:`Model.gate`) and the stuck detector's repeat
-        count (samples)."""
+        stuck gate and sensor noise (3, ny; :attr:`Model.gate`), the stuck detector's repeat
+        count and the settling steps (samples)."""
         nx, nu, ny, nz, nq, nh = (int(d) for d in self.dims)
         lay = block_layout(nx, nu, ny, nz, nq)
         width = lay[-1] if self.online else lay[-2] - (nx + nq) * ny * (self.z_gains.shape[0] > 0)
@@ -1131,7 +1139,7 @@ class PackedModel:
         return Model(self.trim_tab, self.dyn_tab, self.dims, self.ex, self.cls, self.s_scale, self.s_corr,
                      self.s_state,
                      bool(self.online), self.p_tab, np.ascontiguousarray(V_pinv), self.z_gains,
-                     self.z_labels, np.ascontiguousarray(gate, dtype=np.float64), int(stuck_n),
+                     self.z_labels, np.ascontiguousarray(gate, dtype=np.float64), int(stuck_n), int(settle_n),
                      self.ko_tab, self.ko_avail,
                      self.sub_tab)
 

@@ -87,7 +87,7 @@ def unseal(path):
 def test_csv_errors(tmp_path):
     (tmp_path / "bad.csv").write_text("time[s],Nf[rpm]\n0,1\n0.1,abc\n")
     with pytest.raises(LogError, match="bad.csv.*non-numeric"):
-        read_log(tmp_path / "bad.csv")
+        read_log(tmp_path / "bad.csv").require(["Nf"])
     (tmp_path / "ragged.csv").write_text("time[s],Nf[rpm]\n0,1\n0.1\n")
     with pytest.raises(LogError, match="row 3"):
         read_log(tmp_path / "ragged.csv")

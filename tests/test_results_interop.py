@@ -19,7 +19,7 @@ from test_fleet_run import DB, slice_log
 def run(tmp_path_factory):
     """One short log with a steady snapshot, its in-memory result and its results file (all outputs)."""
     d = tmp_path_factory.mktemp("interop")
-    log = slice_log(d / "log.h5", n=2500)
+    log = slice_log(d / "log.h5", n=4500)
     est = Estimator(DB)
     est.run_file(log, d / "log.estimates.h5")
     return est, est.run(log), str(d / "log.estimates.h5")
@@ -47,7 +47,7 @@ def test_xarray_opens_results_with_time_and_channel_coordinates(run, tmp_path):
     thin = str(tmp_path / "thin.estimates.h5")
     est.run_file(whole.source, thin, outputs=["h_hat"], every=4)
     with xr.open_dataset(thin, engine="h5netcdf") as ds:
-        assert set(ds.data_vars) == {"flags", "h_hat"} and ds.sizes["time"] == 625
+        assert set(ds.data_vars) == {"flags", "h_hat"} and ds.sizes["time"] == 1125
         np.testing.assert_array_equal(ds["time"].values, whole.time[::4])
 
 

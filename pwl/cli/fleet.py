@@ -110,7 +110,7 @@ def run_diagnose(args) -> int:
     import numpy as np
 
     from ..database import GainDatabase
-    from ..fleet.diagnose import DiagnosisConfig, diagnose_fleet, mixed_engines, recoveries, write_diagnosis
+    from ..fleet.diagnose import DiagnosisConfig, copies, diagnose_fleet, mixed_engines, recoveries, write_diagnosis
     from ..fleet.trending import detail_units, readable_detail
 
     check_output(args.output)
@@ -128,7 +128,7 @@ def run_diagnose(args) -> int:
     if not records:
         print("pwl fleet diagnose: no readable results files", file=sys.stderr)
         return 2
-    for line in mixed_engines(records):
+    for line in copies(records) + mixed_engines(records):
         print(f"pwl: warning: {line}", file=sys.stderr)
     db_path = database_of(records, args.database)
     cfg = DiagnosisConfig()

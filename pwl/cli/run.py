@@ -243,7 +243,7 @@ FLAG_LABELS = (("updated", "updated"), ("trusted", "trusted"), ("no_update", "wi
                ("held_input", "input held"), ("implausible", "implausible"), ("misfit", "misfit"),
                ("health_implausible", "implausible health"), ("health_held", "health held"), ("stuck", "stuck sensor"),
                ("trim_outside", "outside the trim grid"), ("dyn_outside", "outside the dynamics grid"),
-               ("not_started", "before the first valid sample"))
+               ("not_started", "before the first valid sample"), ("settling", "settling"))
 
 
 def describe(counts: dict) -> str:
@@ -272,10 +272,13 @@ def too_few(counts: dict, min_updated: float) -> str:
                                                           ("misfit_channels", "misfit")) if worst(key)]
     if updated < min_updated * n or not n:
         why = f"{updated} of {n} samples had a measurement update"
+    elif good < min_updated * n and counts.get("settling", 0) >= n - good:
+        why = (f"{good} of {n} samples trusted, {counts['settling']} within the filter's settling time from its "
+               "first valid sample (its estimates still converging): the log is too short")
     elif good < min_updated * n:
         flagged = ", ".join(f"{label} {counts[k] / n:.0%}" for k, label in (
             ("misfit", "misfit"), ("health_implausible", "implausible health"),
-            ("trim_outside", "outside the trim grid")) if counts.get(k))
+            ("trim_outside", "outside the trim grid"), ("settling", "within the filter's settling time")) if counts.get(k))
         why = f"{good} of {n} samples trusted ({flagged}: a unit mistake, a failed sensor or the wrong database?)"
     else:
         why = (f"health held on {held} of {n} samples (not estimated: a sensor the health estimates need was "

@@ -20,7 +20,7 @@ def run(args) -> int:
     import sys
 
     from ..database import GainDatabase
-    from ..fleet.diagnose import group_engines, mixed_engines
+    from ..fleet.diagnose import copies, group_engines, mixed_engines
     from ..fleet.trending import engine_trend, plot_trend
     from .fleet import database_of, read_flights, results_files
     from .output import check_output, plot_or_note
@@ -31,7 +31,7 @@ def run(args) -> int:
         print("pwl trend: a trend needs at least two flights", file=sys.stderr)
         return 2
     db = GainDatabase.open(database_of(records, args.database))
-    for line in mixed_engines(records):
+    for line in copies(records) + mixed_engines(records):
         print(f"pwl: warning: {line}", file=sys.stderr)
     fleet = read_flights(results_files(args.fleet))[0] if args.fleet else None
     engines = group_engines(records)

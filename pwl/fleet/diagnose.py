@@ -333,54 +333,75 @@ def flight_numbers(es: EngineSeries) -> np.ndarray:
 
 
 @dataclass
-class WearReference:
-    """The fleet's normal wear: per health parameter (``columns``, indices into the signature
-    columns, and their ``names``) the median rate over the engines and its robust spread
-    (fraction per flight)."""
+class FleetNorm:
+    """A fleet's normal engine in health-parameter space: per health parameter (``columns``,
+    indices into the signature columns, and their ``names``) the median over ``engines`` engines
+    and its robust spread, of wear rates (fraction per flight, :func:`wear_reference`) or of
+    baseline levels (fraction, :func:`level_reference`)."""
 
     columns: np.ndarray
     names: list[str]
     median: np.ndarray
     spread: np.ndarray
     engines: int
+    rest: np.ndarray     # (m,) robust spread per deviation channel of what health does not explain
 
-    def at(self, S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(mean rate (k,), rate covariance (k, k)) in deviations per flight of channels with
-        signatures S (k, ncol): S_h median, S_h diag(spread^2) S_h^T."""
+    def at(self, S: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(mean (k,), covariance (k, k)) in the deviation channels ``idx`` (k,) with signatures
+        S (k, ncol): S_h median, S_h diag(spread^2) S_h^T + diag(rest[idx]^2) (engine-to-engine
+        differences no health parameter explains, such as sensor calibrations)."""
         Sh = S[:, self.columns]
-        return Sh @ self.median, (Sh * self.spread ** 2) @ Sh.T
+        return Sh @ self.median, (Sh * self.spread ** 2) @ Sh.T + np.diag(self.rest[idx] ** 2)
 
 
-def wear_reference(series: list[EngineSeries], Sigma: np.ndarray,
-                   cfg: DiagnosisConfig = DiagnosisConfig()) -> WearReference | None:
-    """The normal wear of a fleet, from every engine with at least ``cfg.wear_flights`` complete
-    flights (None with fewer than ``cfg.wear_engines`` of them): each engine's deviation rate
-    (least-squares slope per channel over its flight numbers) read as health-parameter rates
-    (whitened least squares on the mean signatures of its component columns); per parameter the
-    median over the engines and 1.4826 x the median absolute deviation. Robust to the engines
-    with a fault (a step makes a slope an outlier), up to half of them. Like Sigma it uses every
-    engine's whole history: an engine is compared with its fleet's wear, not with its own."""
+def _fleet_norm(series: list[EngineSeries], Sigma: np.ndarray, cfg: "DiagnosisConfig", per_engine) -> FleetNorm | None:
+    """The median and 1.4826 x median absolute deviation over the engines with at least
+    ``cfg.wear_flights`` complete flights (None with fewer than ``cfg.wear_engines``) of
+    ``per_engine(D, t)`` (a vector of deviations from an engine's complete flights D at flight
+    numbers t) read as health-parameter values (whitened least squares on the mean signatures of
+    its component columns), and of what they leave per channel. Robust to the engines with a
+    fault, up to half of them."""
     cols = np.array([j for j, c in enumerate(series[0].columns) if not c.startswith("sensor:")] if series else [])
     if cols.size == 0:
         return None
-    rates = []
+    vals, rest = [], []
     Wt = np.linalg.inv(np.linalg.cholesky(Sigma))
     for es in series:
         ok = np.all(np.isfinite(es.D), axis=1)
         if ok.sum() < cfg.wear_flights:
             continue
-        D = es.D[ok]
-        t = flight_numbers(es)[ok]
-        tc = t - t.mean()
-        slope = tc @ D / (tc @ tc)
         Sh = np.nanmean(es.S[ok], axis=0)[:, cols]
-        rates.append(np.linalg.lstsq(Wt @ Sh, Wt @ slope, rcond=None)[0])
-    if len(rates) < cfg.wear_engines:
+        v = per_engine(es.D[ok], flight_numbers(es)[ok])
+        vals.append(np.linalg.lstsq(Wt @ Sh, Wt @ v, rcond=None)[0])
+        rest.append(v - Sh @ vals[-1])
+    if len(vals) < cfg.wear_engines:
         return None
-    R = np.array(rates)
-    med = np.median(R, axis=0)
-    return WearReference(cols, [series[0].columns[j] for j in cols], med,
-                         1.4826 * np.median(np.abs(R - med), axis=0), len(rates))
+    def robust(V):
+        med = np.median(V, axis=0)
+        return med, 1.4826 * np.median(np.abs(V - med), axis=0)
+    med, spread = robust(np.array(vals))
+    return FleetNorm(cols, [series[0].columns[j] for j in cols], med, spread, len(vals), robust(np.array(rest))[1])
+
+
+def wear_reference(series: list[EngineSeries], Sigma: np.ndarray,
+                   cfg: DiagnosisConfig = DiagnosisConfig()) -> FleetNorm | None:
+    """The normal wear of a fleet (:func:`_fleet_norm`): each engine's deviation rate
+    (least-squares slope per channel over its flight numbers) as health-parameter rates. Like
+    Sigma it uses every engine's whole history: an engine is compared with its fleet's wear, not
+    with its own."""
+    def slope(D, t):
+        tc = t - t.mean()
+        return tc @ D / (tc @ tc)
+    return _fleet_norm(series, Sigma, cfg, slope)
+
+
+def level_reference(series: list[EngineSeries], Sigma: np.ndarray,
+                    cfg: DiagnosisConfig = DiagnosisConfig()) -> FleetNorm | None:
+    """The fleet's normal health when its engines' records begin (:func:`_fleet_norm`): each
+    engine's mean deviation over its first n_base + 1 complete flights (its baseline), as
+    health-parameter levels. An engine whose baseline is off it (a fault before its first
+    flight, an engine delivered or repaired with a defect) has no step of its own to find."""
+    return _fleet_norm(series, Sigma, cfg, lambda D, t: D[: cfg.n_base + 1].mean(axis=0))
 
 
 @dataclass
@@ -413,11 +434,12 @@ CSV_FIELDS = ("engine", "flight", "label", "status", "detected", "class", "kind"
               "missing", "earlier", "source")
 
 
-def _fit_changes(D, Wt, S, t, taus, shape, bank, eps, trend=False, steps=(), spread=None):
+def _fit_changes(D, Wt, S, t, taus, shape, bank, eps, trend=False, steps=(), spread=None, level=True):
     """For each change point tau and hypothesis: statistic, estimate, its covariance.
 
     D (n, m) deviations at flights t (n,), Wt (m, m) whitening (Wt @ d ~ N(0, I)), S (m, ncol)
-    signatures. The engine's own level is a nuisance, and with ``trend`` also a straight line in
+    signatures. The engine's own level is a nuisance (unless ``level`` is False: D is then
+    measured from the fleet's level), and with ``trend`` also a straight line in
     t per channel (the engine's normal wear), so that a step is a jump off the engine's own wear
     line; and a step per channel at each flight number of ``steps`` (faults already found: a new
     change is measured from them, its uncertainty growing by eps of their size). The signatures are uncertain by a fraction ``eps`` of the change they describe
@@ -435,7 +457,12 @@ def _fit_changes(D, Wt, S, t, taus, shape, bank, eps, trend=False, steps=(), spr
     for r in sorted({len(h.columns) for h in bank}):
         his = [i for i, h in enumerate(bank) if len(h.columns) == r]
         groups.append((his, np.array([bank[i].columns for i in his])))
-    X = np.column_stack([np.ones(n), t - t.mean()]) if trend and n >= 4 else np.ones((n, 1))
+    if not level:
+        X = np.zeros((n, 0))
+    elif trend and n >= 4:
+        X = np.column_stack([np.ones(n), t - t.mean()])
+    else:
+        X = np.ones((n, 1))
     X = np.column_stack([X] + [(t >= s).astype(float) for s in steps])
     Xp = np.linalg.pinv(X)
     # a fault found varies from flight to flight by the signatures' uncertainty too: what it
@@ -473,7 +500,9 @@ def _decide(dec, stage, bank, S, t, es, rowsok, n_tests, cfg) -> bool:
     unconstrained change, then the hypothesis there with the largest T - cost; fill ``dec`` and
     return True if it is detected (Bonferroni p below alpha and big enough). Shape ``wear``: a
     ramp from the first flight tested against the fleet's normal wear (its size need not reach
-    min_rate, only min_step over the history)."""
+    min_rate, only min_step over the history); ``level``: the baseline against the fleet's
+    normal level (min_step). Wear or a level whose efficiencies are all better than the fleet's
+    is not a fault."""
     by_point = {}
     for shape, fits in stage:
         for f in fits:
@@ -486,20 +515,25 @@ def _decide(dec, stage, bank, S, t, es, rowsok, n_tests, cfg) -> bool:
     p = float(stats.chi2.sf(T, len(bank[hi].columns))) * n_tests
     h = bank[hi]
     size = float(np.linalg.norm(S[:, h.columns] @ th))   # fitted change (rate for ramps), relative
-    if shape != "step":
-        big = size >= (cfg.min_rate if shape == "ramp" else 0.0) and size * (t[-1] - tau + 1) >= cfg.min_step
+    # wear is the components': a sensor has no fleet wear to compare with, so its trend from the
+    # first flight is a drift held to min_rate (a slower one is as likely the seasons in the
+    # model's error: fuel flow "wearing" 0.03 %/flight over a winter and a summer)
+    sensor_trend = shape == "wear" and "sensor:" in h.name
+    if shape in ("ramp", "wear"):
+        floor = cfg.min_rate if shape == "ramp" or sensor_trend else 0.0
+        big = size >= floor and size * (t[-1] - tau + 1) >= cfg.min_step
     else:
         big = size >= cfg.min_step
     effs = [v for c, v in zip(h.columns, th) if es.columns[c].endswith("_eff")]
-    if not (p < cfg.alpha and big) or (shape == "wear" and effs and min(effs) > 0):
-        return False       # (a wear whose efficiencies rise wears slower than its fleet: not a fault)
+    if not (p < cfg.alpha and big) or (shape in ("wear", "level") and effs and min(effs) > 0):
+        return False
     # confidence among the bank at the chosen change point and shape
     sc = np.array([f[2] - bank[f[1]].cost(cfg) for f in here])
     w = np.exp((sc - sc.max()) / 2.0)
     w /= w.sum()
     order = np.argsort(-w)
     dec.detected, dec.cls, dec.statistic = 1, h.name, T
-    dec.kind = {"ramp": "drift"}.get(shape, shape)
+    dec.kind = "drift" if shape == "ramp" or sensor_trend else shape
     if shape == "step" and effs and min(effs) > 0:     # every efficiency up: maintenance, not a fault
         dec.detected, dec.kind, dec.status = 0, "recovery", "recovery"
     dec.onset = int(tau)
@@ -548,36 +582,52 @@ def _frozen(es: EngineSeries, k: int, base: int, sensor: str) -> bool:
         and bool(es.SE[base, cols].max() > 0.0)
 
 
-def _stages(D, Wt, S, t, bank, cfg, wear, steps):
-    """The fits of the two stages of a flight's tests (lists of (shape, fits of
-    :func:`_fit_changes`)): deviations D (n, m) at flight numbers t (n,), whitening Wt, the
-    signatures S (m, ncol) (they hardly move with the operating point: their mean over the flights),
-    the fleet's normal ``wear`` or None, ``steps`` the onsets of the faults found."""
+def _stages(D, Wt, S, t, bank, cfg, wear, steps, level=None):
+    """The fits of the stages of a flight's tests, in the order they are decided (each a list of
+    (shape, fits of :func:`_fit_changes`)): deviations D (n, m) at flight numbers t (n,),
+    whitening Wt, the signatures S (m, ncol) (they hardly move with the operating point: their
+    mean over the flights), the fleet's normal ``wear`` and ``level`` in these channels
+    ((mean (m,), covariance (m, m)) of :meth:`FleetNorm.at`) or None, ``steps`` the onsets of
+    the faults found."""
     fit = partial(_fit_changes, D, Wt, S, t, bank=bank, eps=cfg.eps)
     if steps:   # a new change after the faults found, measured from them; else the last one
         new = t[t > steps[-1]]
-        return ([("step", fit(new, "step", trend=cfg.wear, steps=steps)),
+        return [[("step", fit(new, "step", trend=cfg.wear, steps=steps)),
                  ("ramp", fit(new, "ramp", trend=cfg.wear, steps=steps))],
-                [("step", fit(np.array([float(steps[-1])]), "step", trend=cfg.wear, steps=steps[:-1]))])
+                [("step", fit(np.array([float(steps[-1])]), "step", trend=cfg.wear, steps=steps[:-1]))]]
+    stages = _first_stages(fit, D, Wt, S, t, bank, cfg, wear)
+    if level is not None:
+        # 3. nothing changed since the first flight: is the baseline itself off the fleet's?
+        mean, spread = level
+        base = slice(0, cfg.n_base + 1)
+        off = _fit_changes(D[base] - mean, Wt, S, t[base], t[:1], "step", bank, cfg.eps, spread=spread, level=False)
+        stages.append([("level", [f for f in off if "sensor:" not in bank[f[1]].name])])
+    return stages
+
+
+def _first_stages(fit, D, Wt, S, t, bank, cfg, wear):
+    """Stages 1 and 2 of :func:`_stages` on an engine without a fault found."""
     # 1. a step or a drift that starts after the first flights, off the engine's wear line
     stage1 = [("step", fit(t[1:], "step", trend=cfg.wear)), ("ramp", fit(t[1:], "ramp", trend=cfg.wear))]
     # 2. with the wear line as nuisance, wear faster than normal is tested on its own: the
     #    engine's whole-history rate (a ramp from the first flight, level only), against the
     #    fleet's normal wear when there is a fleet
     if not cfg.wear:
-        return stage1, []
+        return [stage1]
     if wear is None:
-        return stage1, [("ramp", fit(t[:1], "ramp"))]
-    mean, spread = wear.at(S)
-    return stage1, [("wear", _fit_changes(D - np.outer(t, mean), Wt, S, t, t[:1], "ramp", bank, cfg.eps,
-                                          spread=spread))]
+        return [stage1, [("ramp", fit(t[:1], "ramp"))]]
+    mean, spread = wear
+    return [stage1, [("wear", _fit_changes(D - np.outer(t, mean), Wt, S, t, t[:1], "ramp", bank, cfg.eps,
+                                           spread=spread))]]
 
 
 def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = DiagnosisConfig(),
-                    wear: "WearReference | None" = None) -> list[Decision]:
+                    wear: FleetNorm | None = None, level: FleetNorm | None = None) -> list[Decision]:
     """Causal diagnosis of one engine: one :class:`Decision` per flight, using flights 0..k.
     ``wear``: the fleet's normal wear (:func:`wear_reference`); without it, wear is reported
-    when faster than ``cfg.min_rate``."""
+    when faster than ``cfg.min_rate``. ``level``: the fleet's normal baseline
+    (:func:`level_reference`); with it, an engine whose first flights are already off the
+    fleet's (and which changed no further) is kind ``level``, onset its first flight."""
     n, m = es.D.shape
     bank_all = hypotheses(es.columns, cfg.pairs)
     rows = []
@@ -613,15 +663,16 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
         bank = [h for h in bank_all if np.linalg.norm(Sbar_all[:, h.columns], axis=0).min() > 1e-9]
         t = number[rowsok]
         known = [f[0] for f in found if f[0] >= first]
-        stage1, stage2 = _stages(D, Wt, Sbar_all, t, bank, cfg, wear, known)
-        n_tests = max(1, sum(len(f) for _, f in stage1 + stage2))
-        every = [f for _, fits in stage1 + stage2 for f in fits]
+        stages = _stages(D, Wt, Sbar_all, t, bank, cfg, wear and wear.at(Sbar_all, idx), known,
+                         level.at(Sbar_all, idx) if level and first == 0 else None)
+        every = [f for stage in stages for _, fits in stage for f in fits]
+        n_tests = max(1, len(every))
         if not every:
             rows.append(dec)
             continue
         p_all = stats.chi2.sf([f[2] for f in every], [len(bank[f[1]].columns) for f in every]) * n_tests
         dec.p_value = min(float(p_all.min()), 1.0)
-        for stage in (stage1, stage2):
+        for stage in stages:
             if stage and _decide(dec, stage, bank, Sbar_all, t, es, rowsok, n_tests, cfg):
                 break
         if dec.kind == "recovery":
@@ -679,10 +730,37 @@ def recoveries(decisions: list[Decision]) -> list[Decision]:
 
 
 # ---- many engines -------------------------------------------------------------------------------
+def _copy_key(r: FlightRecord) -> tuple:
+    """What two results files of one flight share: engine, flight time and index, snapshots."""
+    s = r.snapshot
+    return r.engine, r.order[:2], s.t0.tobytes(), s.samples.tobytes(), s.mean.tobytes()
+
+
+def copies(records: list[FlightRecord]) -> list[str]:
+    """A line for every flight whose results are a copy of another's (the same engine, flight
+    time, flight index and snapshots: a log sent twice under two names), which
+    :func:`group_engines` leaves out."""
+    first: dict = {}
+    out = []
+    for r in sorted(records, key=lambda r: r.order):
+        k = _copy_key(r)
+        if k in first:
+            out.append(f"engine {r.engine}: {r.source} repeats {first[k].source} (the same flight time, "
+                       "index and snapshots: one flight sent twice?): left out")
+        first.setdefault(k, r)
+    return out
+
+
 def group_engines(records: list[FlightRecord]) -> dict[str, list[FlightRecord]]:
+    """Engine -> its flights, in natural order of the engine names; a copy of a flight already
+    there (:func:`copies`) is left out, so flight numbers and fits count each flight once."""
     out: dict[str, list[FlightRecord]] = {}
-    for r in records:
-        out.setdefault(r.engine, []).append(r)
+    seen = set()
+    for r in sorted(records, key=lambda r: r.order):
+        k = _copy_key(r)
+        if k not in seen:
+            seen.add(k)
+            out.setdefault(r.engine, []).append(r)
     return {k: out[k] for k in sorted(out, key=_natural)}
 
 
@@ -705,14 +783,16 @@ def prepare(records: list[FlightRecord], db: GainDatabase) -> tuple[Signatures, 
 def diagnose_fleet(records: list[FlightRecord], db: GainDatabase,
                    cfg: DiagnosisConfig = DiagnosisConfig()) -> tuple:
     """Every engine of ``records``; returns (decisions, Sigma, deviation channel names, regime
-    centres (R, np), the fleet's normal wear (:class:`WearReference`, or None))."""
+    centres (R, np), the fleet's normal wear (:class:`FleetNorm`, or None)). Each engine is
+    judged against the fleet's scatter, normal wear and normal baseline level."""
     sig, centers = prepare(records, db)
     series = [engine_series(v, sig, len(centers)) for v in group_engines(records).values()]
     Sigma = noise_covariance(series, cfg.floor)
     wear = wear_reference(series, Sigma, cfg) if cfg.wear else None
+    level = level_reference(series, Sigma, cfg)
     rows = []
     for es in series:
-        rows += diagnose_engine(es, Sigma, cfg, wear)
+        rows += diagnose_engine(es, Sigma, cfg, wear, level)
     return rows, Sigma, series[0].channels, centers, wear
 
 

@@ -23,7 +23,8 @@ import numpy as np
 
 from ..database import GainDatabase
 from .diagnose import (DiagnosisConfig, Decision, FlightRecord, diagnose_engine, engine_series, group_engines,
-                       noise_covariance, prepare, recoveries, wear_reference)
+                       level_reference, noise_covariance, prepare, recoveries,
+                       wear_reference)
 
 
 @dataclass
@@ -159,20 +160,22 @@ def engine_trend(records: list[FlightRecord], db: GainDatabase,
 
     ``fleet``: the flights of the engine's fleet (may include its own). Then the engine is judged
     as ``pwl fleet diagnose`` judges it: against the fleet's flight-to-flight scatter and its
-    normal wear (:func:`pwl.fleet.diagnose.wear_reference`). Alone, against its own scatter (which
+    normal wear and baseline level (:func:`pwl.fleet.diagnose.wear_reference`,
+    :func:`~pwl.fleet.diagnose.level_reference`). Alone, against its own scatter (which
     holds an intermittent fault's toggles) and ``min_rate`` for wear."""
     mine = {r.source for r in records}
     others = [r for r in (fleet or []) if r.source not in mine]
     sig, centers = prepare(records + others, db)
     es = engine_series(records, sig, len(centers))
-    wear = None
+    wear = level = None
     if others:
         series = [es] + [engine_series(v, sig, len(centers)) for v in group_engines(others).values()]
         Sigma = noise_covariance(series, cfg.floor)
         wear = wear_reference(series, Sigma, cfg) if cfg.wear else None
+        level = level_reference(series, Sigma, cfg)
     else:
         Sigma = noise_covariance([es], cfg.floor)
-    dec = diagnose_engine(es, Sigma, cfg, wear)
+    dec = diagnose_engine(es, Sigma, cfg, wear, level)
     H = es.h_hat
     ok = np.all(np.isfinite(H), axis=1)
     x = np.flatnonzero(ok).astype(float)
