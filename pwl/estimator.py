@@ -316,6 +316,9 @@ class Estimator:
         self.missing = dict.fromkeys(self.input_channels, 0)
         self.misfit = dict.fromkeys(self.db.names["y"], 0)
         self.implausible = dict.fromkeys(self.input_channels, 0)
+        self._evidence = {}      # channel or ("misfit", sensor) -> kept values (_checked)
+        na = len(self.db.trim_grid.axes)   # samples outside the trim grid; each axis's extremes (_accumulate)
+        self._envelope = [0, np.full(na, np.inf), np.full(na, -np.inf)]
 
     @property
     def covariance(self) -> np.ndarray | None:
@@ -477,67 +480,75 @@ class Estimator:
                           "every sample; a channel map renames a channel logged under another name)",
                           PwlWarning, stacklevel=3)
 
-    def _warn_units(self, path, arrays, n: int) -> None:
-        """Warn of every channel implausible on at least a tenth of a log's ``n`` samples, with
-        its typical value (the median of its finite values in ``arrays``, the kernel's U, Y, S,
-        TH, DE of the log or of its first chunk) and the units in which that value would be
-        plausible: most often a unit the log does not declare (a temperature in degC, an
-        altitude in ft, a speed in percent)."""
+    #: values of each channel kept per run chunk for the warnings' typical values
+    EVIDENCE = 2000
+
+    def _checked(self, res: Result, path, arrays) -> None:
+        """After a run of the kernel on ``arrays`` (:meth:`_split`): the envelope policy
+        (:meth:`_check_envelope`), the misfit samples per sensor counted, and some of every
+        channel's implausible values and every sensor's misfitting ones with their predictions
+        kept (:attr:`EVIDENCE` per chunk) for the warnings."""
+        self._check_envelope(res.flags, res.time, path)
         corr = self.db.correction
         std = [1.0, 1.0, 1.0, corr.T_std if corr else 1.0, corr.P_std if corr else 1.0]
-        done = set()
-        for cols, a, s in zip(self._columns(), arrays, std):
+        for cols, a, sc in zip(self._columns(), arrays, std):
             for j, c in enumerate(cols):
-                k = self.implausible.get(c, 0)
-                if c is None or c in done or k < max(n, 1) / 10:
-                    continue
-                done.add(c)
-                with np.errstate(over="ignore"):     # spikes (_SPIKE) overflow: inf, left out
-                    v = (a[:, j] if a.ndim == 2 else a) * s
-                med = float(np.median(v[np.isfinite(v)])) if np.isfinite(v).any() else np.nan
                 lo, hi = self.ranges.get(c, (-np.inf, np.inf))
-                unit = self.channel_units.get(c, "")
-                guess = likely_units(med, unit, lo, hi)
-                why = (f"logged in {' or '.join(guess)}? Declare the unit (a 'name[unit]' column, a row of "
-                       "units or a channel map)") if guess else "a unit mistake or a failed sensor?"
-                warnings.warn(f"{path}: channel {c!r}: {k} of {n} samples implausible, typically {med:.6g} "
-                              f"where {lo:.6g} to {hi:.6g} {unit} is plausible: {why}", PwlWarning, stacklevel=4)
-
-    def _checked(self, res: Result, path) -> None:
-        """After a run of the kernel: the envelope policy (:meth:`_check_envelope`), the misfit
-        samples per sensor counted (:meth:`_count_misfit`)."""
-        self._check_envelope(res.flags, res.time, path)
-        self._count_misfit(res)
-
-    def _warn_channels(self, path, arrays, res: Result, n: int) -> None:
-        """The warnings of a log's channels mostly implausible (:meth:`_warn_units`) or misfitting
-        (:meth:`_warn_misfit`), judged on the kernel's ``arrays`` and the result ``res`` of the
-        log or of its first chunk; ``n`` samples in all."""
-        self._warn_units(path, arrays, n)
-        self._warn_misfit(path, arrays[1], res.outputs["y_hat"], n)
-
-    def _count_misfit(self, res: Result) -> None:
-        """Add a result's samples per sensor whose residual exceeded the misfit gate (the
-        kernel's FLAG_MISFIT test, sensor by sensor) to :attr:`misfit`."""
+                if c is None or a is None:
+                    continue
+                with np.errstate(over="ignore", invalid="ignore"):  # spikes (_SPIKE) overflow: inf
+                    v = (a[:, j] if a.ndim == 2 else a) * sc
+                    v = v[np.isfinite(v) & ((v < lo) | (v > hi))]
+                if v.size:
+                    self._evidence.setdefault(c, []).append(v[: self.EVIDENCE])
+        y, y_hat = arrays[1], res.outputs["y_hat"]
         with np.errstate(invalid="ignore"):
-            hit = np.abs(res.outputs["residual"]) > self._model.gate[0] * np.abs(res.outputs["y_hat"])
-        for c, k in zip(self.db.names["y"], hit.sum(axis=0)):
+            hit = np.abs(res.outputs["residual"]) > self._model.gate[0] * np.abs(y_hat)
+        for i, (c, k) in enumerate(zip(self.db.names["y"], hit.sum(axis=0))):
             self.misfit[c] += int(k)
+            if k:
+                rows = np.flatnonzero(hit[:, i])[: self.EVIDENCE]
+                self._evidence.setdefault(("misfit", c), []).append(np.column_stack([y[rows, i], y_hat[rows, i]]))
 
-    def _warn_misfit(self, path, Y, y_hat, n: int) -> None:
-        """Warn of every sensor that misfit on at least a tenth of a log's ``n`` samples, with
-        its typical logged value and prediction (medians over Y and y_hat, (m, ny), the log's or
-        its first chunk's) and the units that would make them agree: a unit mistake inside the
-        plausible range (a T48 in degC read as K) or a failed sensor, left out of the update."""
-        for i, c in enumerate(self.db.names["y"]):
-            k = self.misfit.get(c, 0)
-            if k < max(n, 1) / 10:
+    def _typical(self, key):
+        """Median of the values kept for ``key`` (:meth:`_checked`), per column."""
+        return np.median(np.concatenate(self._evidence[key]), axis=0)
+
+    def _warn_channels(self, path, n: int) -> None:
+        """Warn of every channel implausible on at least a tenth of a log's ``n`` samples, with
+        the typical implausible value (the median of those kept) and the units in which that
+        value would be plausible: most often a unit the log does not declare (a temperature in
+        degC, an altitude in ft, a speed in percent); and of every sensor that misfit on at
+        least a tenth, with its typical logged value and prediction where it misfit and the
+        units that would make them agree: a unit mistake inside the plausible range (a T48 in
+        degC read as K) or a failed sensor, left out of the update."""
+        for c, k in self.implausible.items():
+            if k < max(n, 1) / 10 or c not in self._evidence:
                 continue
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)    # all-NaN columns
-                have, want = float(np.nanmedian(Y[:, i])), float(np.nanmedian(y_hat[:, i]))
+            med = float(self._typical(c))
+            lo, hi = self.ranges.get(c, (-np.inf, np.inf))
             unit = self.channel_units.get(c, "")
-            tol = self._model.gate[0, i] * abs(want)
+            guess = likely_units(med, unit, lo, hi)
+            why = (f"logged in {' or '.join(guess)}? Declare the unit (a 'name[unit]' column, a row of "
+                   "units or a channel map)") if guess else (
+                "the engine not running, or a failed sensor?" if med < lo else "a unit mistake or a failed sensor?")
+            warnings.warn(f"{path}: channel {c!r}: {k} of {n} samples implausible, typically {med:.6g} "
+                          f"where {lo:.6g} to {hi:.6g} {unit} is plausible: {why}", PwlWarning, stacklevel=4)
+        k, low, high = self._envelope
+        if k >= max(n, 1) / 100:
+            axes = self.db.trim_grid.axes
+            far = ", ".join(f"{a.name} {lo:g} .. {hi:g} (grid {a.values[0]:g} .. {a.values[-1]:g})"
+                            for a, lo, hi in zip(axes, low, high) if lo < a.values[0] or hi > a.values[-1])
+            how = "extrapolated from" if self.db.policy == "extrapolate" else "clipped to"
+            warnings.warn(f"{path}: {k} of {n} samples outside the database's grid, {far}: the model there "
+                          f"is {how} the grid's edge (the farther out, the less its estimates hold); a "
+                          "database built over the log's envelope fixes it", PwlWarning, stacklevel=4)
+        for c, k in self.misfit.items():
+            if k < max(n, 1) / 10 or ("misfit", c) not in self._evidence:
+                continue
+            have, want = (float(v) for v in self._typical(("misfit", c)))
+            unit = self.channel_units.get(c, "")
+            tol = self._model.gate[0, self.db.names["y"].index(c)] * abs(want)
             guess = likely_units(have, unit, want - tol, want + tol)
             why = (f"logged in {' or '.join(guess)}? Declare the unit (a 'name[unit]' column, a row of units or "
                    "a channel map)") if guess else "a failed or biased sensor, or a unit mistake?"
@@ -615,10 +626,10 @@ class Estimator:
         res.source = log.path
         res.attrs = {k: v for k, v in log.attrs.items() if k in LOG_ATTRS} | {
             "provenance": self.provenance | self._log_record(log)}
-        self._checked(res, log.path)
-        self._warn_channels(log.path, arrays, res, len(res.time))
+        self._checked(res, log.path, arrays)
         acc = self._snapshot_accumulator(dt)
         self._accumulate(acc, 0, res, arrays)
+        self._warn_channels(log.path, len(res.time))
         res.snapshots = acc.snapshots()
         return res
 
@@ -787,6 +798,16 @@ class Estimator:
             lim = self._limits_of(2, 3, 4)
             sched = np.column_stack([S, th, de])
             p[~np.all((sched >= lim[0]) & (sched <= lim[1]), axis=1)] = np.nan   # implausible: no point
+        axes = db.trim_grid.axes
+        pt = p[:, [db.names["p"].index(a.name) for a in axes]]
+        lo, hi = np.array([a.values[0] for a in axes]), np.array([a.values[-1] for a in axes])
+        env = self._envelope
+        with np.errstate(invalid="ignore"):
+            env[0] += int(np.count_nonzero(np.any((pt < lo) | (pt > hi), axis=1)))
+        if np.isfinite(pt).any():
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)      # an all-NaN axis
+                env[1], env[2] = np.fmin(env[1], np.nanmin(pt, axis=0)), np.fmax(env[2], np.nanmax(pt, axis=0))
         outside = (res.flags & (FLAG_TRIM_OUTSIDE | FLAG_DYN_OUTSIDE | FLAG_NOT_STARTED)) != 0
         outs = {o: res.outputs[o] for o in SNAPSHOT_OUTPUTS}
         # no snapshot value of what was not estimated there: health held, or any estimate while
@@ -917,15 +938,14 @@ class Estimator:
                 for a in range(0, n, chunk):     # outputs a chunk at a time, whatever the format
                     arrays, time = part(a, min(n, a + chunk))
                     res = self.run_arrays(*arrays, time=time)
-                    first = (arrays, res) if a == 0 else first
-                    self._checked(res, log_path)
+                    self._checked(res, log_path, arrays)
                     rows = thin_rows(a, len(time), every)
                     append_rows(f, res.time[rows], {o: res.outputs[o][rows] for o in keep}, res.flags[rows])
                     self._accumulate(acc, a, res, arrays)
                     totals.add(res)
                 for k, v in (totals.attrs() | self._log_record(head)).items():
                     f.attrs[k] = v
-                self._warn_channels(log_path, *first, n)
+                self._warn_channels(log_path, n)
                 snaps = acc.snapshots()
                 snaps.save(f.create_group("snapshots"))
         return totals.counts | {"snapshots": len(snaps), "missing_channels": dict(self.missing), "misfit_channels":

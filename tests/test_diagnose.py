@@ -503,3 +503,17 @@ def test_a_flight_sent_twice_is_counted_once():
     assert [r.source for r in kept] == ["f0.h5", "f1.h5", "f2.h5", "f3.h5", "other.h5"]
     lines = copies(recs)
     assert len(lines) == 1 and "f2_resent.h5 repeats f2.h5" in lines[0]
+
+
+def test_missing_names_a_regime_not_flown_and_sensors_lost_in_a_flown_one():
+    """Two regimes of three channels: flight 5 has no window in regime 1 ('regime:1', not every
+    sensor), flight 6 lacks channel c1 in regime 0 only ('c1')."""
+    rng = np.random.default_rng(2)
+    S = np.vstack([synthetic_signatures()[:3]] * 2)
+    D = rng.normal(0, 1e-3, (8, 6))
+    D[5, 3:] = np.nan
+    D[6, 1] = np.nan
+    es = series(D, S)
+    es.channels = [f"c{j}@{r}" for r in range(2) for j in range(3)]
+    rows = diagnose_engine(es, np.eye(6) * 1e-6, DiagnosisConfig())
+    assert [r.missing for r in rows] == [""] * 5 + ["regime:1", "c1", ""]

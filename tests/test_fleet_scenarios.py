@@ -185,7 +185,7 @@ def test_tiny_fleet_simulate_run_diagnose_score(tmp_path, capsys):
         assert sorted(os.listdir(R / e)) == [f"flight_{j:03d}.estimates.h5" for j in range(6)]
     diag = tmp_path / "diagnosis.csv"
     assert main(["fleet", "diagnose", str(R), "-o", str(diag)]) == 0
-    capsys.readouterr()
+    assert "too few engines for the fleet's normal wear and level (at least 8 with 8" in capsys.readouterr().out
     png = tmp_path / "confusion.png"
     assert main(["fleet", "score", str(diag), str(F / "truth.csv"), "--json", "--plot", str(png)]) == 0
     res = json.loads(capsys.readouterr().out)         # stdout is JSON only, the plot note on stderr

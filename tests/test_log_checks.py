@@ -210,8 +210,9 @@ def test_run_prints_every_flag_count_and_fails_a_log_without_estimates(tmp_path,
     for label in ("updated", "without update", "input held", "implausible", "outside the trim grid",
                   "outside the dynamics grid", "before the first valid sample"):
         assert label in err
-    assert "dead.h5" in err and "TOO FEW ESTIMATES: 0 of 300 samples had a measurement update; " \
-                                "missing or implausible: y2 100%, y1 100%, y0 100%" in err
+    assert "dead.h5" in err and "TOO FEW ESTIMATES: the filter never started: none of the 300 samples had " \
+                                "every input and scheduling channel valid; missing or implausible: y2 100%, " \
+                                "y1 100%, y0 100%" in err
     assert err.count("TOO FEW") == 1
     # provenance: the database and the log by path and digest
     with h5py.File(tmp_path / "out" / "good.estimates.h5") as f:
@@ -297,7 +298,10 @@ def test_a_log_just_below_the_grid_is_trusted():
     log = read_log(logs[1])
     low = Log(log.time, dict(log.channels, alt=log.channels["alt"] - 300.0), log.units, attrs=log.attrs)
     est = Estimator(db_path)
-    a, b = est.run(log), est.run(low)
+    a = est.run(log)
+    with pytest.warns(PwlWarning, match=r"samples outside the database's grid, alt -300 \.\. [0-9]+ \(grid 0 \.\. "
+                                        r"12000\): the model there is clipped to the grid's edge"):
+        b = est.run(low)
     c = b.counts()
     assert c["trim_outside"] > 10000 and c["updated"] == c["samples"]
     assert c["trusted"] == c["samples"] - c["settling"] == a.counts()["trusted"]

@@ -153,6 +153,10 @@ def run_diagnose(args) -> int:
     if wear is not None:
         print(f"normal wear of the fleet (median over {wear.engines} engines +- robust spread, % per flight): " +
               ", ".join(f"{n} {100 * m:+.4f} +- {100 * s:.4f}" for n, m, s in zip(wear.names, wear.median, wear.spread)))
+    elif cfg.wear:
+        print(f"too few engines for the fleet's normal wear and level (at least {cfg.wear_engines} with "
+              f"{cfg.wear_flights} complete flights each): wear is reported from {100 * cfg.min_rate:g} % per "
+              "flight, and an engine off its fleet from its first flight is not tested")
     nosnap = sum(r.status == "no steady snapshot" for r in rows)
     if nosnap:
         print(f"{nosnap} flights without a steady snapshot (not diagnosed)")

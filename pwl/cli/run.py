@@ -182,7 +182,7 @@ def run(args) -> int:
           f"({n / dt:,.0f} samples/s including start-up and I/O)")
     done = [r.counts for r in results if r.counts]
     if done:
-        print("all logs: " + describe({k: sum(c.get(k, 0) for c in done) for k in done[0]
+        print("all logs: " + describe({k: sum(c.get(k) or 0 for c in done) for k in done[0]
                                        if k in dict(FLAG_LABELS) or k == "samples"}))
     if skipped:
         print(f"{len(skipped)} log(s) skipped: their results files already hold results of the same "
@@ -250,7 +250,7 @@ def describe(counts: dict) -> str:
     """One line: the sample count and every flag count of a log's run."""
     n = max(counts["samples"], 1)
     parts = [f"{counts[k]} {label}" + (f" ({counts[k] / n:.0%})" if k in ("updated", "trusted") else "")
-             for k, label in FLAG_LABELS if k in counts]
+             for k, label in FLAG_LABELS if counts.get(k) is not None]   # None: an older file's
     return f"{counts['samples']} samples: " + ", ".join(parts)
 
 
@@ -258,8 +258,10 @@ def too_few(counts: dict, min_updated: float) -> str:
     """Why a log's estimates cannot be trusted -- fewer than ``min_updated`` of its samples had a
     measurement update, or were trusted (:func:`pwl.results.trusted`: plausible health, a model
     that explains the sensors), or had their health estimated (not held) -- naming the channels
-    that were missing or implausible, or misfit, and what else was flagged; "" if fine."""
-    n = counts["samples"]
+    that were missing or implausible, or misfit, and what else was flagged; "" if fine. The
+    samples before the filter's start (an engine not yet running) do not count."""
+    total = counts["samples"]
+    n = total - (counts.get("not_started") or 0)
     updated = counts.get("updated", n)
     good = counts.get("trusted", updated)      # results files written before "trusted"
     held = counts.get("health_held", 0)
@@ -267,20 +269,23 @@ def too_few(counts: dict, min_updated: float) -> str:
         return ""
     def worst(key):    # the four channels with the most samples under ``key``, as percentages
         top = sorted(((v, c) for c, v in (counts.get(key) or {}).items() if v), reverse=True)[:4]
-        return ", ".join(f"{c} {v / max(n, 1):.0%}" for v, c in top)
+        return ", ".join(f"{c} {v / max(total, 1):.0%}" for v, c in top)
     chans = [f"{label}: {worst(key)}" for key, label in (("missing_channels", "missing or implausible"),
                                                           ("misfit_channels", "misfit")) if worst(key)]
-    if updated < min_updated * n or not n:
-        why = f"{updated} of {n} samples had a measurement update"
-    elif good < min_updated * n and counts.get("settling", 0) >= n - good:
-        why = (f"{good} of {n} samples trusted, {counts['settling']} within the filter's settling time from its "
+    after = f" after the filter's start ({total - n} before it)" if total > n else ""
+    if not n:
+        why = f"the filter never started: none of the {total} samples had every input and scheduling channel valid"
+    elif updated < min_updated * n:
+        why = f"{updated} of {n} samples had a measurement update{after}"
+    elif good < min_updated * n and (counts.get("settling") or 0) >= n - good:
+        why = (f"{good} of {n} samples trusted{after}, {counts['settling']} within the filter's settling time from its "
                "first valid sample (its estimates still converging): the log is too short")
     elif good < min_updated * n:
         flagged = ", ".join(f"{label} {counts[k] / n:.0%}" for k, label in (
             ("misfit", "misfit"), ("health_implausible", "implausible health"),
             ("trim_outside", "outside the trim grid"), ("settling", "within the filter's settling time")) if counts.get(k))
-        why = f"{good} of {n} samples trusted ({flagged}: a unit mistake, a failed sensor or the wrong database?)"
+        why = f"{good} of {n} samples trusted{after} ({flagged}: a unit mistake, a failed sensor or the wrong database?)"
     else:
-        why = (f"health held on {held} of {n} samples (not estimated: a sensor the health estimates need was "
+        why = (f"health held on {held} of {n} samples{after} (not estimated: a sensor the health estimates need was "
                "missing, stuck or misfitting)")
     return why + "".join(f"; {c}" for c in chans)

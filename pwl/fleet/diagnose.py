@@ -646,8 +646,7 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
         # channels with data on this flight and on most earlier flights; flights lacking one are skipped
         upto = present[: k + 1]
         keep = present[k] & (upto.mean(axis=0) >= 0.5)
-        lost = dict.fromkeys(es.channels[j].split("@")[0] for j in range(m) if not present[k, j])
-        dec.missing = " ".join(lost)
+        dec.missing = _missing(es.channels, present[k])
         rowsok = np.flatnonzero(np.all(upto[:, keep], axis=1))
         rowsok = rowsok[rowsok >= first]
         if rowsok.size < cfg.n_base + 1:
@@ -691,6 +690,17 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
                                if first <= tau < dec.onset and not (episode and c == dec.cls))
         rows.append(dec)
     return rows
+
+
+def _missing(channels: list[str], present: np.ndarray) -> str:
+    """What a flight lacks, for the ``missing`` column: ``regime:R`` for an operating regime it
+    has no steady window in, and each sensor missing in a regime it does have (``channel@R``
+    names, ``present`` (m,) bool)."""
+    regimes = dict.fromkeys(c.split("@")[1] for c in channels)
+    flown = {r for c, ok in zip(channels, present) if ok for r in [c.split("@")[1]]}
+    lost = [f"regime:{r}" for r in regimes if r not in flown]
+    lost += dict.fromkeys(c.split("@")[0] for c, ok in zip(channels, present) if not ok and c.split("@")[1] in flown)
+    return " ".join(lost)
 
 
 def _episodes(dec: Decision, found: list) -> None:

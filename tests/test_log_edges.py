@@ -1,10 +1,12 @@
-"""The filter's settling time: the samples right after its start are flagged FLAG_SETTLING, not
-trusted and kept out of the snapshots, so a log of a few seconds cannot pass as trusted estimates."""
+"""Where a log starts and how it is sampled: the filter's settling time (the samples right after
+its start are flagged FLAG_SETTLING and not trusted, so a log of a few seconds cannot pass as
+trusted estimates), an engine not yet running, a recorder that drops rows."""
 import numpy as np
 import pytest
 
 from pwl.cli import main
 from pwl.database import GainDatabase
+from pwl.errors import PwlWarning
 from pwl.demo_data import demo_paths
 from pwl.estimator import Estimator
 from pwl.logs import Log, read_log, write_log
@@ -84,3 +86,24 @@ def test_a_log_that_drops_rows_runs_on_the_database_time_grid():
     assert fn_error(res, holes) < 1.1 * full
     est.MISSING_ROWS = np.inf                  # one filter step per logged row, as before
     assert fn_error(est.run(holes), holes) > 1.5 * full
+
+
+def test_an_engine_off_before_the_flight_does_not_fail_the_log(tmp_path, capsys):
+    """15 minutes of an engine not running (speeds and fuel flow 0: implausible, so the filter
+    waits) before the 13.5-minute degraded demo flight: pwl run passes it (the samples before
+    the filter's start do not count; it failed as 'too few'), and once the filter starts the
+    estimates are the flight's alone."""
+    log = read_log(LOGS[1])
+    off = 60000
+    chans = {c: np.concatenate([np.full(off, 0.0 if c in ("Nf", "Nc", "Wf") else v[0]), v])
+             for c, v in log.channels.items()}
+    write_log(tmp_path / "late.h5", Log(np.arange(off + len(log.time)) * 0.015, chans, log.units,
+                                         attrs={"dt": 0.015}))
+    code = main(["run", DB, str(tmp_path / "late.h5"), "-o", str(tmp_path / "out"), "-j", "1"])
+    out = capsys.readouterr()
+    assert code == 0 and "TOO FEW" not in out.out + out.err
+    with pytest.warns(PwlWarning, match=r"channel 'Wf': 60000 of 114001 samples implausible, typically 0 where "
+                                        r"0.01 to 6 kg/s is plausible: the engine not running"):
+        res = Estimator(DB).run(str(tmp_path / "late.h5"))      # (it guessed lb/s from the flight's values)
+    assert res.counts()["not_started"] == off
+    np.testing.assert_allclose(res.z_hat[off:], Estimator(DB).run(log).z_hat, rtol=1e-9, atol=0)
