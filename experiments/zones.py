@@ -237,7 +237,8 @@ def compare_database(db_path, logs, k: int = 3, seed: int = 0, settle: float = 1
         lines.append(f"  zone-gain copy written to {out}")
     rows, health, speed, traces = [], [], {}, None
     if logs:
-        ests = {"interp": Estimator(db), "zones": Estimator(zoned, "zones"), "online": Estimator(db, "online", health_std=False)}
+        ests = {"interp": Estimator(db, settle=settle), "zones": Estimator(zoned, "zones", settle=settle),
+                "online": Estimator(db, "online", health_std=False, settle=settle)}   # settling: the summaries' own
         for path in logs:
             log = read_log(path)
             res = {f: e.run(log) for f, e in ests.items()}

@@ -16,7 +16,8 @@ from .grid import Axis, Grid
 from .h5io import atomic_h5
 from .logs import (Log, LogError, check_time, read_header, read_log, read_rows, resample, rows_missing, sample_interval,
                    time_gaps)
-from .runtime import (FLAG_DYN_OUTSIDE, FLAG_HEALTH_HELD, FLAG_NOT_STARTED, FLAG_SETTLING, FLAG_TRIM_OUTSIDE, HEALTH_HOLD_RATIO,
+from .runtime import (FLAG_DYN_OUTSIDE, FLAG_HEALTH_HELD, FLAG_IMPLAUSIBLE, FLAG_NOT_STARTED, FLAG_SETTLING, FLAG_STUCK,
+                      FLAG_TRIM_OUTSIDE, HEALTH_HOLD_RATIO,
                       MISFIT_SIGMAS, STUCK_AFTER, STUCK_SIGMAS, Bias, Filter, Inputs, Outputs, PackedModel, blank_implausible,
                       filter_loop, report, screen, spike_mask, burst_mask, state_layout)
 from .results import LOG_ATTRS, Result, append_rows, init_result_file
@@ -151,6 +152,7 @@ class Estimator:
             from .channel_map import ChannelMap
             channel_map = ChannelMap.load(channel_map)
         self.channel_map = channel_map   # logs read from files go through it (pwl.channel_map)
+        self.failed: list[str] = []      # sensors failed for the last log (_failed_sensors): left out
         self.resample = resample
         zt = None
         if zones:
@@ -317,6 +319,7 @@ class Estimator:
         self.misfit = dict.fromkeys(self.db.names["y"], 0)
         self.implausible = dict.fromkeys(self.input_channels, 0)
         self._evidence = {}      # channel or ("misfit", sensor) -> kept values (_checked)
+        self._fit_rows, self._misfit_in = 0, {}   # samples where the model should fit, misfits there
         na = len(self.db.trim_grid.axes)   # samples outside the trim grid; each axis's extremes (_accumulate)
         self._envelope = [0, np.full(na, np.inf), np.full(na, -np.inf)]
 
@@ -504,8 +507,13 @@ class Estimator:
         y, y_hat = arrays[1], res.outputs["y_hat"]
         with np.errstate(invalid="ignore"):
             hit = np.abs(res.outputs["residual"]) > self._model.gate[0] * np.abs(y_hat)
+        # where the model should fit: started, inside the grid, no implausible channel, no sensor
+        # already left out as stuck (a frozen sensor misfits once its prediction moves)
+        fit = (res.flags & (FLAG_TRIM_OUTSIDE | FLAG_DYN_OUTSIDE | FLAG_NOT_STARTED | FLAG_IMPLAUSIBLE | FLAG_STUCK)) == 0
+        self._fit_rows += int(fit.sum())
         for i, (c, k) in enumerate(zip(self.db.names["y"], hit.sum(axis=0))):
             self.misfit[c] += int(k)
+            self._misfit_in[c] = self._misfit_in.get(c, 0) + int(np.count_nonzero(hit[fit, i]))
             if k:
                 rows = np.flatnonzero(hit[:, i])[: self.EVIDENCE]
                 self._evidence.setdefault(("misfit", c), []).append(np.column_stack([y[rows, i], y_hat[rows, i]]))
@@ -544,21 +552,24 @@ class Estimator:
                           f"is {how} the grid's edge (the farther out, the less its estimates hold); a "
                           "database built over the log's envelope fixes it", PwlWarning, stacklevel=4)
         for c, k in self.misfit.items():
-            if k < max(n, 1) / 10 or ("misfit", c) not in self._evidence:
-                continue
-            have, want = (float(v) for v in self._typical(("misfit", c)))
-            unit = self.channel_units.get(c, "")
-            tol = self._model.gate[0, self.db.names["y"].index(c)] * abs(want)
-            guess = likely_units(have, unit, want - tol, want + tol)
-            why = (f"logged in {' or '.join(guess)}? Declare the unit (a 'name[unit]' column, a row of units or "
-                   "a channel map)") if guess else "a failed or biased sensor, or a unit mistake?"
-            warnings.warn(f"{path}: sensor {c!r} misfit on {k} of {n} samples (typically {have:.6g} {unit} "
-                          f"against {want:.6g} predicted) and was left out of the update: {why}",
-                          PwlWarning, stacklevel=4)
+            if k >= max(n, 1) / 10 and ("misfit", c) in self._evidence:
+                warnings.warn(f"{path}: sensor {c!r} misfit on {k} of {n} samples ({self._misfit_text(c)}) and was "
+                              "left out of the update there", PwlWarning, stacklevel=4)
+
+    def _misfit_text(self, c: str) -> str:
+        """Sensor c's typical logged value and prediction where it misfit, and the units that would
+        make them agree (a unit mistake inside the plausible range: a T48 in degC read as K)."""
+        have, want = (float(v) for v in self._typical(("misfit", c)))
+        unit = self.channel_units.get(c, "")
+        tol = self._model.gate[0, self.db.names["y"].index(c)] * abs(want)
+        guess = likely_units(have, unit, want - tol, want + tol)
+        why = (f"logged in {' or '.join(guess)}? Declare the unit (a 'name[unit]' column, a row of units or "
+               "a channel map)") if guess else "a failed or biased sensor, or a unit mistake?"
+        return f"typically {have:.6g} {unit} against {want:.6g} predicted: {why}"
 
     def _split(self, log: Log, rows=slice(None)):
         """The kernel's input arrays from a log's ``rows`` (a slice; checks presence and units of
-        every channel; :meth:`absent_sensors` NaN; spikes of the inputs, scheduling channels and
+        every channel; :meth:`absent_sensors` and the sensors failed for the log NaN; spikes of the inputs, scheduling channels and
         theta/delta set outside their plausible range, judged with the samples around the rows:
         :func:`spikes`)."""
         db, pm = self.db, self.pm
@@ -580,7 +591,9 @@ class Estimator:
         U, S = np.ascontiguousarray(cols[:, :U.shape[1]]), np.ascontiguousarray(cols[:, U.shape[1]:-2])
         TH, DE = (np.ascontiguousarray(cols[:, -2]), np.ascontiguousarray(cols[:, -1])) \
             if pm.theta_channel else (None, None)
-        return U, take(db.names["y"], rows), S, TH, DE
+        Y = take(db.names["y"], rows)
+        Y[:, [db.names["y"].index(c) for c in self.failed]] = np.nan      # failed for this log
+        return U, Y, S, TH, DE
 
     def run(self, log, reset: bool = True) -> Result:
         """Estimates for a whole log.
@@ -613,25 +626,55 @@ class Estimator:
             check_time(log.path, log.time)     # as read_log does for files
         else:
             log = read_log(log, channel_map=self.channel_map)
+        self._warn_absent(log)
+        if reset:
+            self.failed = []
+        res = self._run_log(log, reset)
+        if reset and self._failed_sensors(log.path):
+            res = self._run_log(log, True)
+        self._warn_channels(log.path, len(res.time))
+        return res
+
+    def _run_log(self, log: Log, reset: bool) -> Result:
+        """:meth:`run` once (the sensors of :attr:`failed` left out), without the channel warnings."""
         if reset:
             self.reset()
-        self._warn_absent(log)
         if self._check_interval(log):
-            res, arrays, log = self._run_resampled(log)
+            res, arrays, run_log = self._run_resampled(log)
             dt = sample_interval(res.time)
         else:
             arrays = self._split(log)
             res = self.run_arrays(*arrays, time=log.time)
-            dt = log.dt
+            run_log, dt = log, log.dt
         res.source = log.path
-        res.attrs = {k: v for k, v in log.attrs.items() if k in LOG_ATTRS} | {
-            "provenance": self.provenance | self._log_record(log)}
         self._checked(res, log.path, arrays)
+        res.attrs = {k: v for k, v in log.attrs.items() if k in LOG_ATTRS} | {
+            "provenance": self.provenance | self._log_record(run_log)}
         acc = self._snapshot_accumulator(dt)
         self._accumulate(acc, 0, res, arrays)
-        self._warn_channels(log.path, len(res.time))
         res.snapshots = acc.snapshots()
         return res
+
+    #: a sensor that misfits on this share of a log's samples where the model should fit (inside
+    #: the grid, started, no implausible channel, no stuck sensor) has failed for that log: it is
+    #: run again without it, from its first sample (swapped P50 and P15: 35 %; the demo flights,
+    #: engine-off segments, a T48 step of 15 K in flight: 0)
+    FAILED_SHARE = 0.1
+
+    def _failed_sensors(self, path) -> list[str]:
+        """After a run: the sensors that failed for the log (:attr:`FAILED_SHARE`; not a
+        scheduling channel, which the filter cannot run without), added to :attr:`failed` for a
+        run again, and a warning naming them with their typical values; [] if none."""
+        n = self._fit_rows
+        failed = [c for c in self.db.names["y"] if c not in self.pm.schedule_channels and c not in self.failed
+                  and n >= 100 and self._misfit_in.get(c, 0) >= self.FAILED_SHARE * n]
+        if failed:
+            warnings.warn(f"{path}: " + "; ".join(
+                f"sensor {c!r} misfit on {self._misfit_in[c] / n:.0%} of the samples where the model should fit "
+                f"({self._misfit_text(c)})" for c in failed) + ": a failed, swapped or mis-scaled sensor? "
+                f"Estimated again without {'it' if len(failed) == 1 else 'them'}", PwlWarning, stacklevel=3)
+            self.failed = self.failed + failed
+        return failed
 
     def _run_resampled(self, log: Log):
         """(result, kernel arrays, resampled log) of a log resampled to the database's dt.
@@ -730,7 +773,8 @@ class Estimator:
                "implausible_channels": json.dumps({c: n for c, n in self.implausible.items() if n}),
                "missing_channels": json.dumps({c: n for c, n in self.missing.items() if n}),
                "misfit_channels": json.dumps({c: n for c, n in self.misfit.items() if n}),
-               "absent_channels": json.dumps(self.absent_sensors(log))}
+               "absent_channels": json.dumps(self.absent_sensors(log)),
+               "failed_channels": json.dumps(self.failed)}
         if "resampled_from" in log.attrs:
             rec["resampled_from_dt"] = float(log.attrs["resampled_from"])
             rec["time_gaps"], rec["longest_gap_s"] = log.attrs["time_gaps"], log.attrs["longest_gap_s"]
@@ -913,7 +957,7 @@ class Estimator:
         EnvelopeError
             The operating point left the grid and the database's policy is ``error``.
         """
-        from .results import Totals, output_units, select_outputs, selection_record, thin_rows
+        from .results import Totals, output_units, select_outputs, selection_record
 
         log_path = os.fspath(log_path)
         keep = select_outputs(self.names, outputs, where=f"{log_path} -> {os.fspath(out_path)}")
@@ -921,35 +965,50 @@ class Estimator:
         units = output_units(self.names, self.db.names, self.db.units)
         self.reset()
         head, part = self._chunks(log_path)
-        totals = Totals()
         if os.fspath(out_path).lower().endswith(".csv") or self._check_interval(head):
-            res = self.run(head if head.channels else log_path, reset=False)
+            res = self.run(head if head.channels else log_path)
             res.units = units
             res.save(out_path, keep, every, compression)
+            totals = Totals()
             totals.add(res)
             snaps = res.snapshots
         else:
-            n = len(head)
             self._warn_absent(head)
-            acc = self._snapshot_accumulator(head.dt)
-            with atomic_h5(out_path) as f:
-                init_result_file(f, {o: self.names[o] for o in keep}, log_path, {}, 0, head.attrs,
-                                 self.provenance | record, units, compression, rows=-(-n // every))
-                for a in range(0, n, chunk):     # outputs a chunk at a time, whatever the format
-                    arrays, time = part(a, min(n, a + chunk))
-                    res = self.run_arrays(*arrays, time=time)
-                    self._checked(res, log_path, arrays)
-                    rows = thin_rows(a, len(time), every)
-                    append_rows(f, res.time[rows], {o: res.outputs[o][rows] for o in keep}, res.flags[rows])
-                    self._accumulate(acc, a, res, arrays)
-                    totals.add(res)
-                for k, v in (totals.attrs() | self._log_record(head)).items():
-                    f.attrs[k] = v
-                self._warn_channels(log_path, n)
-                snaps = acc.snapshots()
-                snaps.save(f.create_group("snapshots"))
+            args = (log_path, out_path, head, part, chunk, keep, every, self.provenance | record, units, compression)
+            self.failed = []
+            totals, snaps = self._write_chunks(*args)
+            if self._failed_sensors(log_path):
+                self.reset()
+                totals, snaps = self._write_chunks(*args)
+            self._warn_channels(log_path, len(head))
         return totals.counts | {"snapshots": len(snaps), "missing_channels": dict(self.missing), "misfit_channels":
-                                dict(self.misfit), "residual_rms": dict(zip(totals.sensors, totals.residual_rms().tolist()))}
+                                dict(self.misfit), "failed_channels": list(self.failed),
+                                "residual_rms": dict(zip(totals.sensors, totals.residual_rms().tolist()))}
+
+    def _write_chunks(self, log_path, out_path, head, part, chunk, keep, every, prov, units, compression):
+        """:meth:`run_file`'s chunked run of an HDF5 log (``head``, ``part``: :meth:`_chunks`):
+        (Totals, Snapshots)."""
+        from .results import Totals, thin_rows
+
+        n = len(head)
+        totals = Totals()
+        acc = self._snapshot_accumulator(head.dt)
+        with atomic_h5(out_path) as f:
+            init_result_file(f, {o: self.names[o] for o in keep}, log_path, {}, 0, head.attrs, prov, units,
+                             compression, rows=-(-n // every))
+            for a in range(0, n, chunk):     # outputs a chunk at a time, whatever the format
+                arrays, time = part(a, min(n, a + chunk))
+                res = self.run_arrays(*arrays, time=time)
+                self._checked(res, log_path, arrays)
+                rows = thin_rows(a, len(time), every)
+                append_rows(f, res.time[rows], {o: res.outputs[o][rows] for o in keep}, res.flags[rows])
+                self._accumulate(acc, a, res, arrays)
+                totals.add(res)
+            for k, v in (totals.attrs() | self._log_record(head)).items():
+                f.attrs[k] = v
+            snaps = acc.snapshots()
+            snaps.save(f.create_group("snapshots"))
+        return totals, snaps
 
 
 def load_bias_tables(path) -> dict:

@@ -584,9 +584,35 @@ def _from_columns(path, names, units, data, time=None, time_unit="", keep=None) 
         name, d, u = ((names[i][6:], truth, tunits) if names[i].startswith("truth.")
                       else (names[i], chans, cunits))
         d[name], u[name] = v, units[i]
+    seconds = _reorder_rows(path, seconds, chans, truth, attrs)
     seconds = _drop_repeated_rows(path, seconds, chans, truth, attrs)
     check_time(path, seconds)
     return Log(seconds, chans, cunits, truth, tunits, attrs, path)
+
+
+#: rows a logger may have written out of time order: each at most this many rows from its place
+REORDER_ROWS = 8
+
+
+def _reorder_rows(path, seconds, chans, truth, attrs):
+    """Rows written a little out of time order (a logger merging buffers): sorted by time when
+    none is more than :data:`REORDER_ROWS` rows from its place (counted in
+    ``attrs["reordered_rows"]``, a PwlWarning names the first); the time column sorted. Farther
+    (a clock that restarted, two logs in one) is left for :func:`check_time` to refuse."""
+    back = np.flatnonzero(np.diff(seconds) < 0)
+    if not back.size:
+        return seconds
+    order = np.argsort(seconds, kind="stable")
+    if np.abs(order - np.arange(seconds.size)).max() > REORDER_ROWS:
+        return seconds
+    for d in (chans, truth):
+        for k in d:
+            d[k] = d[k][order]
+    attrs["reordered_rows"] = int(back.size)
+    warnings.warn(PwlWarning(f"{path}: {back.size} row(s) out of time order put in order (the first at sample "
+                             f"{back[0] + 1}, time {float(seconds[back[0] + 1])!r} after {float(seconds[back[0]])!r})"),
+                  stacklevel=4)
+    return seconds[order]
 
 
 def _drop_repeated_rows(path, seconds, chans, truth, attrs):

@@ -538,6 +538,27 @@ def test_a_row_logged_twice_is_dropped_and_a_conflicting_one_refused(tmp_path):
         read_log(tmp_path / "clash.csv")
 
 
+def test_rows_a_little_out_of_order_are_sorted_and_a_restarted_clock_refused(tmp_path):
+    """Two neighbouring rows swapped and one row three places late (a logger merging buffers):
+    sorted by time, values with their rows, counted and warned about. A clock that restarts
+    (two flights in one file) is refused as before."""
+    from pwl.errors import PwlWarning
+    t = np.round(0.1 * np.arange(20), 1)
+    order = np.arange(20)
+    order[[3, 4]] = order[[4, 3]]
+    order[10:14] = [11, 12, 13, 10]
+    pd.DataFrame({"time": t[order], "Nf": 1000.0 + order}).to_csv(tmp_path / "merged.csv", index=False)
+    with pytest.warns(PwlWarning, match=r"merged.csv: 2 row\(s\) out of time order put in order \(the first at "
+                                        r"sample 4, time 0.3 after 0.4\)"):
+        log = read_log(tmp_path / "merged.csv")
+    np.testing.assert_array_equal(log.time, t)
+    np.testing.assert_array_equal(log.channels["Nf"], 1000.0 + np.arange(20))
+    assert log.attrs["reordered_rows"] == 2
+    pd.DataFrame({"time": np.r_[t, t + 0.05], "Nf": 1.0}).to_csv(tmp_path / "restart.csv", index=False)
+    with pytest.raises(LogError, match=r"restart.csv: time does not increase at sample 20"):
+        read_log(tmp_path / "restart.csv")
+
+
 @pytest.mark.parametrize("name, what", [("log.xlsx", "Excel"), ("log.json", "JSON")])
 def test_formats_pwl_does_not_read_are_named_with_the_way_in(tmp_path, name, what):
     (tmp_path / name).write_text("{}")

@@ -272,6 +272,8 @@ def too_few(counts: dict, min_updated: float) -> str:
         return ", ".join(f"{c} {v / max(total, 1):.0%}" for v, c in top)
     chans = [f"{label}: {worst(key)}" for key, label in (("missing_channels", "missing or implausible"),
                                                           ("misfit_channels", "misfit")) if worst(key)]
+    if counts.get("failed_channels"):
+        chans.insert(0, "failed for the log (misfit, left out): " + ", ".join(counts["failed_channels"]))
     after = f" after the filter's start ({total - n} before it)" if total > n else ""
     if not n:
         why = f"the filter never started: none of the {total} samples had every input and scheduling channel valid"

@@ -163,7 +163,7 @@ def _estimator(job: Job) -> Estimator:
 
 
 def finished(est: Estimator, job: Job, log_path: str, out_path: str) -> tuple[dict, dict] | None:
-    """The summary row of ``out_path`` and its missing and misfit samples per channel, when it already
+    """The summary row of ``out_path``, its missing and misfit samples per channel and its failed sensors, when it already
     holds what ``job`` would write for ``log_path`` (same database digest, mode, log digest,
     outputs, ``every`` and pwl version: a new version may estimate otherwise; its seal intact);
     None when it must be computed (missing, unreadable, or made otherwise)."""
@@ -178,8 +178,8 @@ def finished(est: Estimator, job: Job, log_path: str, out_path: str) -> tuple[di
     try:
         with open_results(out_path) as f:
             if all(str(attr_str(f, k)) == str(v) for k, v in want.items()):
-                return file_summary(f), {k: json.loads(attr_str(f, k) or "{}") for k in ("missing_channels",
-                                                                                       "misfit_channels")}
+                return file_summary(f), {k: json.loads(attr_str(f, k) or "{}") for k in (
+                    "missing_channels", "misfit_channels", "failed_channels")}
     except ResultError:
         pass
     return None
