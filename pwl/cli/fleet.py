@@ -163,7 +163,8 @@ def run_diagnose(args) -> int:
     print(f"{len(flagged)} engines with a fault at their latest flight:")
     for e, r in flagged.items():
         what = f"{r.kind} {readable_detail(r.detail, units)}" + {
-            "drift": " per flight", "wear": " per flight beyond the fleet's normal wear"}.get(r.kind, "")
+            "drift": " per flight", "wear": " per flight beyond the fleet's normal wear",
+            "level": " against the fleet's median (off its fleet from its first flight)"}.get(r.kind, "")
         if r.kind == "intermittent":
             what = f"intermittent (its bias came and went; last change {readable_detail(r.detail, units)})"
         after = f" (after {', '.join(r.earlier.split())}, still present)" if r.earlier else ""

@@ -50,6 +50,11 @@ def health_summary(time, h_hat, flags, names, source="<memory>", settle: float =
     return HealthSummary(os.fspath(source), list(names), q50, (q75 - q25) / 1.349, int(use.sum()))
 
 
+def _kind(d: Decision) -> str:
+    """A decision's kind as the trend table says it."""
+    return "off its fleet" if d.kind == "level" else d.kind
+
+
 def line(x, y):
     """Least-squares y = a + b x per column of y: returns a, b, se(b), residual std."""
     X = np.column_stack([np.ones_like(x), x])
@@ -119,7 +124,7 @@ class EngineTrend:
                  f"{'flight':<14}" + "".join(f"{s:>8}" for s in short) + "  diagnosis"]
         for i, lab in enumerate(self.labels):
             d = self.decisions[i]
-            verdict = f"{d.cls} {d.kind} since flight {d.onset}: {self.detail(d)}" \
+            verdict = f"{d.cls} {_kind(d)} since flight {d.onset}: {self.detail(d)}" \
                 if d.detected or d.kind in ("recovery", "cleared") else d.status
             lines.append(f"{lab[:14]:<14}" + "".join(f"{100 * v:>8.2f}" for v in self.H[i]) + f"  {verdict}")
         lines.append(f"{'level':<14}" + "".join(f"{100 * v:>8.2f}" for v in self.level))
@@ -133,7 +138,7 @@ class EngineTrend:
                     f"+- {100 * d.magnitude_std:.2f} %{'/flight' if rate else ''}")
             if np.isfinite(d.bias):
                 size += f", bias {d.bias:+.4g} (sensor units)"
-            lines.append(f"FAULT: {d.cls} ({d.kind} since flight {d.onset}), {size}, confidence "
+            lines.append(f"FAULT: {d.cls} ({_kind(d)} since flight {d.onset}), {size}, confidence "
                          f"{d.confidence:.2f} (next: {d.runner_up}); {self.detail(d)}")
             if d.earlier:
                 lines.append(f"  after an earlier fault still present: {', '.join(d.earlier.split())} "
