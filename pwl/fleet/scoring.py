@@ -5,7 +5,7 @@ Inputs are two CSV files, so any diagnostic method can be scored:
 - the diagnosis, one row per engine and flight: ``engine``, ``flight`` (flight number in the
   numbering of the truth's ``onset``: the logs' ``flight_index``, else the 0-based position in
   time order), ``detected`` (0/1), ``class`` (the assigned class; ignored when not detected); optional
-  ``kind`` (step, drift, wear, stuck, intermittent; cleared is not detected), ``magnitude`` (efficiency change for components, relative bias for the
+  ``kind`` (step, drift, wear, level, stuck, intermittent; cleared and recovery are not detected), ``magnitude`` (efficiency change for components, relative bias for the
   fuel-flow measurement) and ``bias`` (sensor units, for sensor faults);
 - the truth, one row per engine: ``engine``, ``class`` (``none`` for a healthy engine), ``onset``
   (first faulty flight, -1 for none), ``magnitude``, ``unit`` (``fraction`` or ``sigma``), ``bias``
