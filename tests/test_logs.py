@@ -111,7 +111,8 @@ def test_duplicate_columns_and_bad_time_are_refused(tmp_path):
     (tmp_path / "dup.csv").write_text("time[s],Wf[kg/s],Nf[rpm],Wf[kg/s]\n0,1,2,3\n0.1,1,2,3\n")
     with pytest.raises(LogError, match=r"dup.csv: duplicate column\(s\) \['Wf'\]"):
         read_log(tmp_path / "dup.csv")
-    for name, body, word in (("back.csv", "0,1\n0.2,1\n0.1,1\n", "does not increase at sample 2"),
+    back = "".join(f"{0.1 * k:.1f},1\n" for k in range(12)) + "0.05,1\n"   # 11 rows back: a clock reset
+    for name, body, word in (("back.csv", back, "does not increase at sample 12"),
                              ("same.csv", "0,1\n0,2\n", "does not increase at sample 1"),   # (0,1 twice: dropped)
                              ("inf.csv", "0,1\ninf,1\n", "is not finite at sample 1"),
                              ("nan.csv", "nan,1\n0.1,1\n", "is not finite at sample 0")):
