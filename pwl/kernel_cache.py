@@ -14,6 +14,8 @@ from __future__ import annotations
 import glob
 import hashlib
 import os
+import sys
+import tempfile
 
 STAMP = "pwl-sources.stamp"
 
@@ -77,6 +79,43 @@ def purge_stale_kernels(package_dir: str, cache_root: str | None = None) -> int:
     return n
 
 
+def _writable(folder: str) -> bool:
+    """Whether a file can be created in ``folder`` (made if missing), as numba needs to cache."""
+    try:
+        os.makedirs(folder, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=folder):
+            return True
+    except OSError:
+        return False
+
+
+def cache_root(package_dir: str, writable=_writable) -> str | None:
+    """Where numba should cache pwl's kernels: ``NUMBA_CACHE_DIR`` when set; None (numba's
+    default, ``__pycache__`` beside the sources) when that is writable; else the first writable
+    of the user's cache folder (``$XDG_CACHE_HOME`` or ``~/.cache``, ``pwl/numba``) and the
+    temporary folder (``pwl-numba-<uid>``). An install the user cannot write to (site-packages
+    of a system Python, a container run as another user) then compiles once per user instead of
+    failing at import with numba's "cannot cache function ...: no locator available"."""
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return os.environ["NUMBA_CACHE_DIR"]
+    if writable(os.path.join(package_dir, "__pycache__")):
+        return None
+    user = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    uid = os.getuid() if hasattr(os, "getuid") else "user"
+    for folder in (os.path.join(user, "pwl", "numba"), os.path.join(tempfile.gettempdir(), f"pwl-numba-{uid}")):
+        if writable(folder):
+            return folder
+    return None
+
+
 def check() -> int:
-    """:func:`purge_stale_kernels` for pwl, in numba's cache folder for this process."""
-    return purge_stale_kernels(os.path.dirname(os.path.abspath(__file__)), os.environ.get("NUMBA_CACHE_DIR") or None)
+    """:func:`purge_stale_kernels` for pwl, in numba's cache folder for this process (set by
+    :func:`cache_root`: ``NUMBA_CACHE_DIR`` and numba's config when pwl's own folder is not
+    writable)."""
+    package_dir = os.path.dirname(os.path.abspath(__file__))
+    root = cache_root(package_dir)
+    if root is not None and not os.environ.get("NUMBA_CACHE_DIR"):
+        os.environ["NUMBA_CACHE_DIR"] = root
+        if "numba" in sys.modules:        # numba read its config already: set it there too
+            sys.modules["numba"].config.CACHE_DIR = root
+    return purge_stale_kernels(package_dir, root)

@@ -75,3 +75,20 @@ def test_stamp_follows_kernel_sources_only(tmp_path):
     assert purge_stale_kernels(str(pkg)) == 1               # no stamp yet: purged
     (cache / "b.kernel-5.py311.nbi").write_text("")
     assert purge_stale_kernels(str(pkg)) == 0               # current: kept
+
+
+def test_a_package_folder_the_user_cannot_write_caches_in_the_users_folder(tmp_path, monkeypatch):
+    """A read-only install (another user's site-packages) caches in the user's cache folder, or
+    the temporary folder, instead of failing at import ('no locator available'); NUMBA_CACHE_DIR
+    wins; a writable install keeps numba's default."""
+    from pwl.kernel_cache import cache_root
+    pkg = str(tmp_path / "pkg")
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert cache_root(pkg) is None                                    # writable: numba's default
+    ro = {os.path.join(pkg, "__pycache__")}
+    assert cache_root(pkg, lambda f: f not in ro) == str(tmp_path / "xdg" / "pwl" / "numba")
+    ro.add(str(tmp_path / "xdg" / "pwl" / "numba"))
+    assert os.path.basename(cache_root(pkg, lambda f: f not in ro)).startswith("pwl-numba-")
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "mine"))
+    assert cache_root(pkg, lambda f: False) == str(tmp_path / "mine")
