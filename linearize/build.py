@@ -20,6 +20,7 @@ and the point.
 """
 from __future__ import annotations
 
+import glob
 import hashlib
 import json
 import os
@@ -271,15 +272,35 @@ def fill_line(values: np.ndarray, ok: np.ndarray, power: np.ndarray):
     return out, status
 
 
-def _key(spec: BuildSpec, ref) -> str:
+def _key(spec: BuildSpec, ref, code: str = "") -> str:
     """The build key of the per-task results: a hash of what phases 1-2 depend on (the plant,
-    the grids and the [build] settings; not [kalman] or [tuners], used by phases 3-4 only)."""
+    its code (:func:`_plant_code`), the grids and the [build] settings; not [kalman] or
+    [tuners], used by phases 3-4 only)."""
     plant = list(ref[1:]) if isinstance(ref, tuple) else [_plant_name(ref), ref.parameters()]
-    what = {"plant": plant, "power_axis": spec.power_axis, "dt": spec.dt, "differences": spec.differences,
+    what = {"plant": plant, "code": code, "power_axis": spec.power_axis, "dt": spec.dt, "differences": spec.differences,
             "perturbation": spec.perturbation, "health_reference": spec.health_reference,
             "dynamics_hold": spec.dynamics_hold,
             "grids": [{a.name: a.values.tolist() for a in g.axes} for g in (spec.trim_grid, spec.dyn_grid)]}
     return hashlib.sha256(json.dumps(what, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def _plant_code(plant) -> str:
+    """A digest of the plant's code: every .py file of the top-level package its class is defined
+    in (or its module's file alone), so results kept from a build of the plant before an edit
+    are not reused (a resumed build reused trims of the old code: outputs x2 stored as before)."""
+    mod = sys.modules.get(type(plant).__module__)
+    path = getattr(mod, "__file__", None)
+    if not path:
+        return ""
+    top = type(plant).__module__.split(".")[0]
+    root = getattr(sys.modules.get(top), "__file__", None) if "." in type(plant).__module__ or \
+        os.path.basename(path) == "__init__.py" else None
+    files = sorted(glob.glob(os.path.join(os.path.dirname(root), "**", "*.py"), recursive=True)) if root else [path]
+    h = hashlib.sha256()
+    for f in files:
+        with open(f, "rb") as fh:
+            h.update(f.encode() + b"\0" + fh.read() + b"\0")
+    return h.hexdigest()
 
 
 def _plant_name(plant) -> str:
@@ -376,6 +397,12 @@ def build(spec: BuildSpec, out_path, *, plant=None, executor: Executor | None = 
         if k not in names["h"]:
             raise SpecError(f"{spec.path}: [build] health_reference names unknown {k!r}")
         h0[names["h"].index(k)] = float(v)
+    for k, v in spec.perturbation.items():      # a typo would leave the plant's size in place
+        if k not in names["x"] + names["u"] + names["h"]:
+            raise SpecError(f"{spec.path}: [build] perturbation names unknown {k!r} (states, inputs and health "
+                            f"parameters: {', '.join(names['x'] + names['u'] + names['h'])})")
+        if not (np.isfinite(v) and v > 0):
+            raise SpecError(f"{spec.path}: [build] perturbation {k} = {v}: must be a finite size > 0")
     noise = dict(getattr(plant, "sensor_noise", None) or {})
     noise.update(spec.r)
     r_frac = per_channel(noise, names["y"], "sensor noise [kalman] r", spec.path, positive=True)
@@ -389,7 +416,7 @@ def build(spec: BuildSpec, out_path, *, plant=None, executor: Executor | None = 
     if getattr(plant, "time", "continuous") == "discrete" and abs(plant.dt - spec.dt) > 1e-12 * spec.dt:
         raise SpecError(f"{spec.path}: dt = {spec.dt} but the discrete plant's dt is {plant.dt}")
 
-    parts = Parts(out_path, _key(spec, ref))
+    parts = Parts(out_path, _key(spec, ref, _plant_code(plant)))
     own = executor is None
     if own:
         executor = process_pool(max(1, workers or os.cpu_count() or 1))

@@ -171,6 +171,9 @@ class BuildSpec:
         dt = build.number("dt", 0.015)
         if not dt > 0:
             raise SpecError(f"{path}: [build] dt = {dt} must be positive")
+        if not tun.strings("targets", ["h"]):
+            raise SpecError(f"{path}: [tuners] targets is empty: name what the tuners should estimate "
+                            '("h" for every health parameter, or health and unmeasured-output names)')
         return cls(plant=model.string("plant", None), parameters=model.table("parameters"), trim_grid=tg,
                    dyn_grid=dg, power_axis=power, dt=dt,
                    differences=build.string("differences", "central", ("central", "forward")),

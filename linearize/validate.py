@@ -112,8 +112,19 @@ def open_loop(db: GainDatabase) -> Estimator:
 
 
 def plant_of(db: GainDatabase):
-    """The database's plant, made as the build made it (attrs ``model``, ``model_parameters``)."""
-    return proto.load_plant(db.attrs["model"], db.attrs.get("model_parameters", {}))
+    """The database's plant, made as the build made it: ``model`` with the [model] parameters of
+    the spec the database stores (attrs ``spec``), else (a build from a plant object) with its
+    ``model_parameters``. :class:`PlantProtocolError` naming the plant when that fails (a
+    constructor that does not take its own ``parameters()``)."""
+    args = db.attrs.get("model_parameters", {})
+    if db.attrs.get("spec"):
+        from .spec import BuildSpec
+        args = BuildSpec.parse(db.attrs["spec"], db.path).parameters
+    try:
+        return proto.load_plant(db.attrs["model"], args)
+    except (TypeError, ValueError) as e:
+        raise proto.PlantProtocolError(f"{db.path}: cannot make the plant {db.attrs['model']} again with "
+                                       f"{args}: {e} (pass the plant object instead)") from None
 
 
 def log_of(plant, db: GainDatabase, p: np.ndarray, env, x, u, y, z) -> Log:

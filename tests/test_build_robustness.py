@@ -116,6 +116,9 @@ def test_a_build_the_plant_makes_fail_is_one_named_line(tmp_path, capsys, parame
     (("level = [0, 1, 2]", 'level = [0, "1", 2]'), "[trim_grid] level"),
     (("parameters = {}", "parameters = [1, 2]"), "[model] parameters"),
     (("parameters = {}", "parameters = {trim_points = 3}"), "[model] parameters"),
+    (("n = 2", "n = 2\ntargets = []"), "[tuners] targets is empty"),
+    (("dt = 0.05", "dt = 0.05\nperturbation = {xx = 1e-3}"), "[build] perturbation names unknown 'xx'"),
+    (("dt = 0.05", "dt = 0.05\nperturbation = {x1 = -1e-3}"), "[build] perturbation x1 = -0.001: must be"),
 ])
 def test_bad_specs_are_one_line_naming_file_and_key(tmp_path, capsys, edit, key):
     text = spec_text().replace(*edit)
@@ -366,3 +369,21 @@ def test_linear_plant_log_channels_are_unbounded(tmp_path):
     assert GainDatabase.open(tmp_path / "l.h5").log_channels == db.log_channels == {
         "u1": ("-", -inf, inf), "y1": ("-", -inf, inf), "y2": ("-", -inf, inf), "y3": ("-", -inf, inf),
         "level": ("-", -inf, inf), "power": ("-", -inf, inf)}
+
+
+def test_the_build_key_changes_with_the_plant_code(tmp_path, monkeypatch):
+    """Results kept from an interrupted build are reused only for the same plant code: the key
+    of a plant module changes when its file does (a resumed build reused the trims of the code
+    before an edit: outputs x2 stored as before)."""
+    import importlib
+    import sys
+    from linearize.build import _plant_code
+    (tmp_path / "edited_plant.py").write_text("class P:\n    gain = 1.0\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    mod = importlib.import_module("edited_plant")
+    before = _plant_code(mod.P())
+    (tmp_path / "edited_plant.py").write_text("class P:\n    gain = 2.0\n")
+    assert _plant_code(mod.P()) != before                 # the file changed (the class object did not)
+    from models.linear import LinearPlant
+    assert _plant_code(LinearPlant()) == _plant_code(LinearPlant()) != ""
+    sys.modules.pop("edited_plant", None)

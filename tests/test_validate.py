@@ -363,3 +363,21 @@ def test_default_transient_altitudes_are_the_trim_grids():
     assert parse_alts("grid", db) == [alt.values[0], 0.5 * (alt.values[0] + alt.values[-1]), alt.values[-1]]
     assert parse_alts("0, 3000", db) == [0.0, 3000.0] and parse_alts("none", db) == []
     assert parse_alts("grid", None) == []
+
+
+def test_the_plant_is_made_again_from_the_specs_parameters_not_its_own(tmp_path):
+    """A plant whose constructor does not take its own parameters() (the linear plant with a
+    fixed matrix, made with no arguments): validate remakes it from the [model] parameters of the
+    spec the database stores (it failed with an internal TypeError); without a spec, a
+    PlantProtocolError names the plant."""
+    import copy
+    from linearize.plant import PlantProtocolError
+    from linearize.validate import plant_of
+    from pwl.database import GainDatabase
+    from pwl.demo_data import demo_paths
+    db = GainDatabase.open(demo_paths()[0])
+    assert type(plant_of(db)).__name__ == "Turbofan"
+    bare = copy.copy(db)
+    bare.attrs = dict(db.attrs, spec="", model_parameters={"no_such_argument": 1})
+    with pytest.raises(PlantProtocolError, match="cannot make the plant models.turbofan:Turbofan again"):
+        plant_of(bare)
