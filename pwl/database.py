@@ -468,6 +468,7 @@ class GainDatabase:
             if self.zones is not None:
                 write_zones(f, self.zones)
             write_tables(f, self.tables)
+        self.sealed, self.format_version = True, VERSION    # as written (its summary says so)
 
     # ---- reading -----------------------------------------------------------------------------
     @classmethod

@@ -387,3 +387,14 @@ def test_the_build_key_changes_with_the_plant_code(tmp_path, monkeypatch):
     from models.linear import LinearPlant
     assert _plant_code(LinearPlant()) == _plant_code(LinearPlant()) != ""
     sys.modules.pop("edited_plant", None)
+
+
+def test_build_will_not_overwrite_a_file_that_is_not_a_database(tmp_path, capsys):
+    """-o pointing at the spec (or any file that is not HDF5) is refused before the build (the spec
+    was overwritten, exit 0); -j 0 is refused."""
+    path = write_spec(tmp_path)
+    before = open(path).read()
+    code, err = run_cli(capsys, "build", path, "-o", path, "--serial", "-q")
+    assert code == 2 and "the file exists and is not an HDF5 file" in err[0] and open(path).read() == before
+    code, err = run_cli(capsys, "build", path, "-o", str(tmp_path / "x.h5"), "-j", "0", "-q")
+    assert code == 2 and "-j 0" in err[0]

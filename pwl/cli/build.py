@@ -14,12 +14,21 @@ def add_arguments(p):
 
 
 def run(args) -> int:
+    import os
+
+    import h5py
+
     from linearize.build import SerialExecutor, build
     from linearize.spec import BuildSpec
 
-    from .output import check_output
+    from .output import OutputPathError, check_output
 
+    if args.workers is not None and args.workers < 1:
+        raise OutputPathError(f"-j {args.workers}: the number of processes must be 1 or more")
     check_output(args.output)
+    if os.path.isfile(args.output) and not h5py.is_hdf5(args.output):
+        raise OutputPathError(f"{args.output}: the file exists and is not an HDF5 file (a gain database): "
+                              "give another output name or delete it first")
     spec = BuildSpec.load(args.spec)
     db = build(spec, args.output, executor=SerialExecutor() if args.serial else None,
                workers=args.workers, progress=not args.quiet, keep_parts=args.keep_parts)
