@@ -943,9 +943,11 @@ def spike_mask(a, span, width, fraction, out):
 def burst_mask(a, span, longest, fraction, out):
     """out (n, k) bool, or-ed in place: the runs of 1..longest values of a (n, k) that are all
     further than fraction * span[j] from the value just before the run and are followed by a
-    value back within it (a recorder or bus dropout: zeros or a stale word for a few samples). A
-    step (no return within ``longest``), a NaN inside the run or at either end is left alone.
-    Returns out."""
+    value back within it (a recorder or bus dropout: zeros or a stale word for a few samples),
+    and a value that jumps so and then stays exactly the same for more than ``longest`` samples,
+    the whole frozen run (a dead bus word: Mach 0 for a minute at cruise, where no channel moves
+    that far in one sample). A step (no return within ``longest``, not frozen), a NaN inside the
+    run or at either end is left alone. Returns out."""
     n, k = a.shape
     for j in range(k):
         tol = fraction * span[j]
@@ -958,10 +960,17 @@ def burst_mask(a, span, longest, fraction, out):
             e = i + 1
             while e < n and e - i < longest and abs(a[e, j] - ref) > tol:
                 e += 1
+            f = i + 1
+            while f < n and a[f, j] == a[i, j]:
+                f += 1
             if e < n and e - i <= longest and abs(a[e, j] - ref) <= tol:
                 for m in range(i, e):
                     out[m, j] = True
                 i = e + 1
+            elif f - i > longest:
+                for m in range(i, f):
+                    out[m, j] = True
+                i = f + 1       # the value after it is measured from before the run, not from the word
             else:
                 i += 1
     return out

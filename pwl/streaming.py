@@ -47,13 +47,16 @@ def _hold_jumps(S, TH, DE, state, osl, jump, longest):
     """The stream's dropout test, causal: a value of a scheduling channel or theta/delta (S (1,
     ns), TH, DE (1,)) further than jump[1, c] from the channel's last value the filter took (the
     filter state's, from ``osl`` on: state_layout) is set to _HELD (implausible: the filter holds
-    the channel) for up to ``longest`` samples in a row (counted in jump[0, c]); the next one is
-    taken (a step). A batch run, which sees ahead, holds only the runs that come back
+    the channel) for up to ``longest`` samples in a row (counted in jump[0, c]), and for as long
+    after as it stays exactly the first held value (jump[2, c]: a frozen bus word); the next one is
+    taken (a step). A batch run, which sees ahead, holds only the runs that come back or freeze
     (:func:`pwl.runtime.burst_mask`)."""
     ns = S.shape[1]
     for c in range(ns + 2):
         v = S[0, c] if c < ns else (TH[0] if c == ns else DE[0])
-        if abs(v - state[osl + c]) > jump[1, c] and jump[0, c] < longest:   # NaN either side: no test
+        if abs(v - state[osl + c]) > jump[1, c] and (jump[0, c] < longest or v == jump[2, c]):   # NaN: no test
+            if jump[0, c] == 0.0:
+                jump[2, c] = v
             jump[0, c] += 1.0
             if c < ns:
                 S[0, c] = _HELD
@@ -153,7 +156,7 @@ class Stream:
                 db.tuner["h_ref"], *est._h_range, self.outputs["h_hat"], est._h_held)
         with np.errstate(over="ignore", invalid="ignore"):
             span = np.diff(est._limits_of(2, 3, 4), axis=0)[0]    # scheduling, theta, delta (inf: none)
-        self._jump = np.vstack([np.zeros(ns + 2), SPIKE_FRACTION * span])
+        self._jump = np.vstack([np.zeros(ns + 2), SPIKE_FRACTION * span, np.full(ns + 2, np.nan)])
         nx, _, _, _, nq, _ = est.pm.dims
         osl = state_layout(nx, nq, nu, ns, ny)[3]          # the filter state's last scheduling values
         self._st = _StreamState(Kernel(io, *records, work), tuple(index) + th + (osl,), post, self._jump)

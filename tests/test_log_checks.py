@@ -12,7 +12,7 @@ from pwl.errors import PwlWarning
 from pwl.estimator import Estimator
 from pwl.h5io import file_digest
 from pwl.logs import Log, LogError, write_log
-from pwl.runtime import FLAG_IMPLAUSIBLE
+from pwl.runtime import FLAG_HELD_INPUT, FLAG_IMPLAUSIBLE
 from test_runtime import full_log, inputs, names_db, open_loop_y
 
 
@@ -465,7 +465,8 @@ def test_spikes_at_chunk_edges_are_judged_as_in_a_whole_run(tmp_path):
 
 def burst_reference(a, tol, longest):
     """The runs burst_mask marks, found another way: every pair (i, e) with a[i-1] and a[e]
-    within tol, all of a[i:e] (1..longest of them) further, scanned left to right."""
+    within tol, all of a[i:e] (1..longest of them) further, scanned left to right; and a jump
+    further than tol followed by the same value more than ``longest`` times (a frozen word)."""
     out = np.zeros(a.shape, bool)
     for j in range(a.shape[1]):
         x = a[:, j]
@@ -474,9 +475,14 @@ def burst_reference(a, tol, longest):
             far = np.abs(x[i:i + longest + 1] - x[i - 1]) > tol[j]
             run = int(np.argmin(far)) if not far.all() else len(far)   # far values before the first near one
             back = i + run < len(x) and abs(x[i + run] - x[i - 1]) <= tol[j]
+            same = np.flatnonzero(x[i:] != x[i])
+            frozen = int(same[0]) if same.size else len(x) - i        # x[i] repeated this many times
             if run >= 1 and run <= longest and back:
                 out[i:i + run, j] = True
                 i += run + 1
+            elif far[0] and frozen > longest:
+                out[i:i + frozen, j] = True
+                i += frozen + 1
             else:
                 i += 1
     return out
@@ -491,9 +497,10 @@ def test_burst_mask_matches_a_reference_scan():
     a[1500:, 1] += 3.0                                        # a step
     a[700, 2] = np.nan
     span = np.array([20.0, 20.0, 20.0])
+    a[2200:2400, 0] = 7.0                                     # a frozen word for 200 samples
     got = burst_mask(a, span, 64, 0.05, np.zeros(a.shape, bool))
     np.testing.assert_array_equal(got, burst_reference(a, 0.05 * span, 64))
-    assert got.sum() > 500 and not got[1500, 1]
+    assert got.sum() > 500 and not got[1500, 1] and got[2200:2400, 0].all() and not got[2400, 0]
 
 
 def test_dropout_runs_of_a_scheduling_channel_are_held():
@@ -515,6 +522,15 @@ def test_dropout_runs_of_a_scheduling_channel_are_held():
             mach[k:k + burst] = 0.0
         res = Estimator(db_path).run(Log(log.time, dict(log.channels, Mach=mach), log.units, path="runs.h5"))
         assert e(res) <= 1.25 * e(clean), burst
+    # Mach 0 for 60 s at cruise (a dead bus word): Fn was 20 % off there, unflagged; now held
+    mach = log.channels["Mach"].copy()
+    mid = len(log) // 2
+    mach[mid:mid + 4000] = 0.0
+    res = Estimator(db_path).run(Log(log.time, dict(log.channels, Mach=mach), log.units, path="dead.h5"))
+    w = slice(mid, mid + 4000)
+    fn = (res.channel("z_hat", "Fn") - log.truth["Fn"]) / log.truth["Fn"]
+    assert np.sqrt(np.mean(fn[w] ** 2)) < 0.005 and np.all(res.flags[w] & FLAG_HELD_INPUT)
+    assert res.counts()["held_input"] == 4000
 
 
 def test_dropout_runs_at_chunk_edges_are_judged_as_in_a_whole_run(tmp_path):

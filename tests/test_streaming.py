@@ -7,7 +7,7 @@ from conftest import make_database
 from linearize.build import with_sensor_out_gains
 from pwl.errors import UsageError
 from pwl.estimator import EnvelopeError, Estimator
-from pwl.runtime import FLAG_DYN_OUTSIDE, FLAG_TRIM_OUTSIDE
+from pwl.runtime import FLAG_DYN_OUTSIDE, FLAG_HELD_INPUT, FLAG_TRIM_OUTSIDE
 from pwl.streaming import Stream
 from test_online import online_db
 from test_runtime import inputs, names_db
@@ -199,3 +199,11 @@ def test_a_stream_holds_dropout_runs_of_a_scheduling_channel():
             mach[k:k + burst] = 0.0
         out, _ = run(dict(log.channels, Mach=mach))
         assert fn_rms(out["z_hat"]) <= 1.25 * fn_rms(clean["z_hat"]), burst
+    # Mach 0 for 60 s (a dead bus word): held past the 64 samples while it stays the same word
+    mach = log.channels["Mach"].copy()
+    mid = len(log) // 2
+    mach[mid:mid + 4000] = 0.0
+    out, flags = run(dict(log.channels, Mach=mach))
+    w = slice(mid, mid + 4000)
+    fn = out["z_hat"][w, est.names["z_hat"].index("Fn")] / log.truth["Fn"][w] - 1
+    assert np.sqrt(np.mean(fn ** 2)) < 0.005 and np.all(flags[w] & FLAG_HELD_INPUT)
