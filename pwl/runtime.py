@@ -940,13 +940,14 @@ def spike_mask(a, span, width, fraction, out):
 
 
 @njit(cache=True, nogil=True)
-def burst_mask(a, span, longest, fraction, out):
+def burst_mask(a, span, longest, fraction, frozen, out):
     """out (n, k) bool, or-ed in place: the runs of 1..longest values of a (n, k) that are all
     further than fraction * span[j] from the value just before the run and are followed by a
     value back within it (a recorder or bus dropout: zeros or a stale word for a few samples),
-    and a value that jumps so and then stays exactly the same for more than ``longest`` samples,
-    the whole frozen run (a dead bus word: Mach 0 for a minute at cruise, where no channel moves
-    that far in one sample). A step (no return within ``longest``, not frozen), a NaN inside the
+    and, in the columns where ``frozen`` (k,) bool, a value that jumps so and then stays exactly
+    the same for more than ``longest`` samples, the whole frozen run (a dead bus word: Mach 0 for
+    a minute at cruise, where no measured channel moves that far in one sample; not an input, a
+    demand that may be held exactly after a start-up step). A step (no return within ``longest``, not frozen), a NaN inside the
     run or at either end is left alone. Returns out."""
     n, k = a.shape
     for j in range(k):
@@ -967,7 +968,7 @@ def burst_mask(a, span, longest, fraction, out):
                 for m in range(i, e):
                     out[m, j] = True
                 i = e + 1
-            elif f - i > longest:
+            elif frozen[j] and longest > 0 and f - i > longest:     # (longest 0: no run test at all)
                 for m in range(i, f):
                     out[m, j] = True
                 i = f + 1       # the value after it is measured from before the run, not from the word

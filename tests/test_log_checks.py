@@ -463,7 +463,7 @@ def test_spikes_at_chunk_edges_are_judged_as_in_a_whole_run(tmp_path):
         np.testing.assert_array_equal(f["q_hat"][()], whole.outputs["q_hat"])
 
 
-def burst_reference(a, tol, longest):
+def burst_reference(a, tol, longest, frozen=True):  # frozen: test frozen words
     """The runs burst_mask marks, found another way: every pair (i, e) with a[i-1] and a[e]
     within tol, all of a[i:e] (1..longest of them) further, scanned left to right; and a jump
     further than tol followed by the same value more than ``longest`` times (a frozen word)."""
@@ -476,13 +476,13 @@ def burst_reference(a, tol, longest):
             run = int(np.argmin(far)) if not far.all() else len(far)   # far values before the first near one
             back = i + run < len(x) and abs(x[i + run] - x[i - 1]) <= tol[j]
             same = np.flatnonzero(x[i:] != x[i])
-            frozen = int(same[0]) if same.size else len(x) - i        # x[i] repeated this many times
+            repeat = int(same[0]) if same.size else len(x) - i   # x[i] repeated this many times
             if run >= 1 and run <= longest and back:
                 out[i:i + run, j] = True
                 i += run + 1
-            elif far[0] and frozen > longest:
-                out[i:i + frozen, j] = True
-                i += frozen + 1
+            elif frozen and far[0] and longest > 0 and repeat > longest:
+                out[i:i + repeat, j] = True
+                i += repeat + 1
             else:
                 i += 1
     return out
@@ -498,9 +498,12 @@ def test_burst_mask_matches_a_reference_scan():
     a[700, 2] = np.nan
     span = np.array([20.0, 20.0, 20.0])
     a[2200:2400, 0] = 7.0                                     # a frozen word for 200 samples
-    got = burst_mask(a, span, 64, 0.05, np.zeros(a.shape, bool))
+    got = burst_mask(a, span, 64, 0.05, np.ones(3, bool), np.zeros(a.shape, bool))
     np.testing.assert_array_equal(got, burst_reference(a, 0.05 * span, 64))
     assert got.sum() > 500 and not got[1500, 1] and got[2200:2400, 0].all() and not got[2400, 0]
+    inputs = burst_mask(a, span, 64, 0.05, np.zeros(3, bool), np.zeros(a.shape, bool))   # no frozen test
+    np.testing.assert_array_equal(inputs, burst_reference(a, 0.05 * span, 64, frozen=False))
+    assert not inputs[2200:2400, 0].any()
 
 
 def test_dropout_runs_of_a_scheduling_channel_are_held():
