@@ -886,7 +886,7 @@ class Estimator:
         """
         if getattr(self, "_stream", None) is None:
             from .streaming import Stream
-            self._stream = Stream(self)
+            self._stream = Stream(self, reset=False)     # step continues from the current state
         s = self._stream
         flags = s.step(s.row(sample))
         out = {o: dict(zip(self.names[o], s.outputs[o][0])) for o in self.names}

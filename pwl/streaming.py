@@ -120,6 +120,10 @@ class Stream:
     ----------
     est : Estimator
         The estimator to step.
+    reset : bool
+        Start a new flight (default: :meth:`reset`, the estimator's state and the missing-sample
+        counts; a stream made after ``est.run`` started from the end of that flight, its health
+        included); False continues from the estimator's state.
 
     Attributes
     ----------
@@ -135,7 +139,7 @@ class Stream:
         Output name -> (1, k) array (the same buffers).
     """
 
-    def __init__(self, est):
+    def __init__(self, est, reset: bool = True):
         self.est = est
         db, pm = est.db, est.pm
         self.channels = list(est.input_channels)
@@ -168,6 +172,8 @@ class Stream:
         sig = (numba.typeof(self._st), types.Array(types.float64, 1, "A"))   # any strides
         _stream_step.compile(sig)
         self._call = _stream_step.overloads[sig].entry_point
+        if reset:
+            self.reset()
         self._step = self.step = self._fast_step()
         for o, a in self.outputs.items():
             setattr(self, o, a[0])
@@ -221,9 +227,12 @@ class Stream:
         return r
 
     def reset(self, q0=None) -> None:
-        """Restart the filter (the estimator's state, shared) and the missing-sample counts."""
+        """Restart the filter (the estimator's state, shared), the missing-sample counts and the
+        dropout holds."""
         self.est.reset(q0)
         self._chan_count[:] = 0
+        self._jump[0] = 0.0
+        self._jump[2] = np.nan
 
     def row(self, sample: dict) -> np.ndarray:
         """The row of a sample given as channel name -> value (a number; None, NaN or a channel

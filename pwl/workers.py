@@ -40,7 +40,9 @@ def _die_with_parent(builder: int | None) -> None:
 
     Linux: the kernel sends SIGKILL when the parent dies (prctl PR_SET_PDEATHSIG). Everywhere: a
     daemon thread exits the worker once its parent pid changes (it was re-parented). ``builder``,
-    the build's pid when it is the direct parent, catches a build killed before this ran."""
+    the build's pid when it is the direct parent, catches a build killed before this ran. A TERM
+    ends a worker as it would without pwl (the CLI turns it into an interrupt in the parent)."""
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     _kill_me_with_parent()
     parent = os.getppid()
     if builder is not None and parent != builder:

@@ -459,3 +459,21 @@ def test_workers_elsewhere_use_the_shared_user_numba_cache(tmp_path):
         chosen, kernel, _ = numba_probe(env, socket.gethostname())
         assert chosen == "None"
         assert os.path.realpath(kernel) == os.path.realpath(os.path.join(ROOT, "pwl", "__pycache__"))
+
+
+def test_a_second_run_into_a_folder_in_use_is_refused(fleet, tmp_path):
+    """Two runs writing one folder removed each other's unfinished results files (2 of 24 logs
+    failed): the second is refused while the first holds the folder's lock; afterwards it runs.
+    A run stopped half-way leaves no summary of the run before it."""
+    from pwl.errors import UsageError
+    from pwl.fleet.runs import lock_folder, remove_summary
+    out = tmp_path / "out"
+    out.mkdir()
+    held = lock_folder(out)
+    with pytest.raises(UsageError, match="another pwl run is writing into this folder"):
+        run_many(DB, fleet[:1], out, workers=1)
+    held.close()
+    assert run_many(DB, fleet[:1], out, workers=1)[0].status == OK
+    (out / "summary.csv").write_text("an older run's")
+    remove_summary(out)
+    assert not (out / "summary.csv").exists()

@@ -7,6 +7,7 @@ from conftest import make_database
 from linearize.build import with_sensor_out_gains
 from pwl.errors import UsageError
 from pwl.estimator import EnvelopeError, Estimator
+from pwl.logs import Log
 from pwl.runtime import FLAG_DYN_OUTSIDE, FLAG_HELD_INPUT, FLAG_TRIM_OUTSIDE
 from pwl.streaming import Stream
 from test_online import online_db
@@ -207,3 +208,22 @@ def test_a_stream_holds_dropout_runs_of_a_scheduling_channel():
     w = slice(mid, mid + 4000)
     fn = out["z_hat"][w, est.names["z_hat"].index("Fn")] / log.truth["Fn"][w] - 1
     assert np.sqrt(np.mean(fn ** 2)) < 0.005 and np.all(flags[w] & FLAG_HELD_INPUT)
+
+
+def test_a_new_stream_starts_a_new_flight():
+    """A stream made after a batch run of another flight starts afresh (it started from that
+    flight's end, degraded health included: Fn up to 287 N off); reset=False continues."""
+    from pwl.demo_data import demo_paths
+    from pwl.logs import read_log
+
+    db_path, logs = demo_paths()
+    new, degraded = (read_log([p for p in logs if k in p][0]) for k in ("new", "degraded"))
+    est = Estimator(db_path)
+    rows = np.column_stack([new.channels[c] for c in est.input_channels])[:500]
+    fresh = Estimator(db_path).run(Log(new.time[:500], {c: v[:500] for c, v in new.channels.items()}, new.units))
+    est.run(degraded)
+    out, _ = run_stream(Stream(est), rows)
+    np.testing.assert_array_equal(out["z_hat"], fresh.outputs["z_hat"])
+    est.run(degraded)
+    carried, _ = run_stream(Stream(est, reset=False), rows)
+    assert not np.array_equal(carried["z_hat"], fresh.outputs["z_hat"])

@@ -58,9 +58,14 @@ def main(argv=None) -> int:
 
     argv = sys.argv[1:] if argv is None else list(argv)
     args = _parser(COMMANDS).parse_args(argv)
+    import signal
     import warnings
     shown = warnings.showwarning
     warnings.showwarning = _plain_pwl_warnings(shown)
+    try:           # a TERM (a scheduler's, a container's stop) ends a command as Ctrl-C does
+        term = signal.signal(signal.SIGTERM, _interrupt)
+    except ValueError:    # not the main thread: leave it
+        term = None
     try:
         return int(args._run(args) or 0)
     except KeyboardInterrupt:
@@ -80,6 +85,12 @@ def main(argv=None) -> int:
         return EXIT_INTERNAL
     finally:
         warnings.showwarning = shown
+        if term is not None:
+            signal.signal(signal.SIGTERM, term)
+
+
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
 
 
 def _plain_pwl_warnings(shown):

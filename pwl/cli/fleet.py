@@ -94,12 +94,13 @@ def read_flights(files, engine_pattern=None):
 
 def database_of(records, given=None) -> str:
     """The gain database to diagnose with: ``given``, else the one every results file names
-    (ValueError naming them when they differ or name none)."""
+    (a UsageError naming them when they differ or name none)."""
+    from ..errors import UsageError
     if given:
         return given
     dbs = sorted({r.database for r in records if r.database})
     if len(dbs) != 1:
-        raise ValueError(("the results name several databases: " + ", ".join(dbs) if dbs else
+        raise UsageError(("the results name several databases: " + ", ".join(dbs) if dbs else
                           "the results do not name their database") + "; give --database")
     return dbs[0]
 

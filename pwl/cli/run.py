@@ -127,7 +127,7 @@ def run(args) -> int:
     from ..database import GainDatabase
     from ..errors import EXIT_FINDINGS, EXIT_INPUT, UsageError
     from ..estimator import Estimator
-    from ..fleet.runs import FAILED, SKIPPED, run_many, write_summary
+    from ..fleet.runs import FAILED, SKIPPED, remove_summary, run_many, write_summary
     from ..results import check_every, select_outputs
 
     from .output import check_output
@@ -149,6 +149,7 @@ def run(args) -> int:
         return EXIT_INPUT
     if len(set(names)) != len(names):       # files given directly with the same name
         names = None
+    remove_summary(args.outdir)      # an interrupted run must not leave the last run's summary
     t0 = time.perf_counter()
     short = []
     bar = Progress("logs", len(logs))

@@ -255,7 +255,8 @@ def result_names(log_paths, names=None) -> list[str]:
 
 def remove_stale_temporaries(outs) -> int:
     """Remove the temporary files a killed run left beside the results files ``outs`` (HDF5
-    writes go to ``.NAME.<random>.tmp`` and are renamed when complete); returns how many."""
+    writes go to ``.NAME.<random>.tmp`` and are renamed when complete); returns how many. Only
+    while holding the folder's lock (:func:`lock_folder`): another run's are not stale."""
     prefixes: dict[str, set] = {}
     for out in outs:
         prefixes.setdefault(os.path.dirname(out) or ".", set()).add("." + os.path.basename(out))
@@ -273,6 +274,25 @@ def remove_stale_temporaries(outs) -> int:
                 except FileNotFoundError:
                     pass
     return n
+
+
+def lock_folder(outdir):
+    """An exclusive lock on the output folder (``outdir/.pwl-run.lock``, an OS file lock released
+    when the run ends or dies), or a :class:`UsageError` when another run holds it: two runs
+    writing one folder removed each other's unfinished results files and failed logs. Returns
+    the open lock file (close it to release); None where the OS has no such lock."""
+    try:
+        import fcntl
+    except ImportError:
+        return None
+    fh = open(os.path.join(os.fspath(outdir), ".pwl-run.lock"), "a")
+    try:
+        fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        fh.close()
+        raise UsageError(f"{outdir}: another pwl run is writing into this folder; wait for it to end or "
+                         "give another output folder") from None
+    return fh
 
 
 def run_many(db_path, log_paths, outdir, workers: int | None = None, csv: bool = False,
@@ -350,6 +370,7 @@ def run_many(db_path, log_paths, outdir, workers: int | None = None, csv: bool =
               check_every(every), compression, force, socket.gethostname(), checks)
     _DATABASES.setdefault((job.database, job.digest), db)   # this process and forked workers
     os.makedirs(outdir, exist_ok=True)
+    lock = lock_folder(outdir)
     remove_stale_temporaries(outs)
     own = None
     if executor is None:
@@ -369,6 +390,8 @@ def run_many(db_path, log_paths, outdir, workers: int | None = None, csv: bool =
     finally:
         if own is not None:
             own.shutdown(cancel_futures=True)
+        if lock is not None:
+            lock.close()
     return results
 
 
@@ -447,6 +470,16 @@ def summary_rows(results) -> list[dict]:
 
 class SummaryError(PwlError, ValueError):
     """A file that is not a fleet summary this pwl reads (names the file and what it found)."""
+
+
+def remove_summary(outdir) -> None:
+    """Remove the fleet summary of ``outdir`` (both forms), before a run that will write it again:
+    a run stopped half-way must not leave the previous run's summary as if it were its own."""
+    for name in ("summary.parquet", "summary.csv"):
+        try:
+            os.remove(os.path.join(os.fspath(outdir), name))
+        except FileNotFoundError:
+            pass
 
 
 def write_summary(results, outdir) -> str:
