@@ -16,9 +16,8 @@ from .grid import Axis, Grid
 from .h5io import atomic_h5
 from .logs import (Log, LogError, check_time, read_header, read_log, read_rows, resample, rows_missing, sample_interval,
                    time_gaps)
-from .runtime import (FLAG_DYN_OUTSIDE, FLAG_HEALTH_HELD, FLAG_IMPLAUSIBLE, FLAG_NOT_STARTED, FLAG_SETTLING, FLAG_STUCK,
-                      FLAG_TRIM_OUTSIDE, HEALTH_HOLD_RATIO,
-                      MISFIT_SIGMAS, STUCK_AFTER, STUCK_SIGMAS, Bias, Filter, Inputs, Outputs, PackedModel, blank_implausible,
+from .runtime import (FLAG_DYN_OUTSIDE, FLAG_HEALTH_HELD, FLAG_IMPLAUSIBLE, FLAG_NO_UPDATE, FLAG_NOT_STARTED,
+                      FLAG_SETTLING, FLAG_STUCK, FLAG_TRIM_OUTSIDE, HEALTH_HOLD_RATIO, MISFIT_SIGMAS, STUCK_AFTER, STUCK_SIGMAS, Bias, Filter, Inputs, Outputs, PackedModel, blank_implausible,
                       filter_loop, report, screen, spike_mask, burst_mask, state_layout)
 from .results import LOG_ATTRS, Result, append_rows, init_result_file
 from .snapshots import SNAPSHOT_OUTPUTS, SnapshotAccumulator, SteadyConfig
@@ -180,9 +179,11 @@ class Estimator:
         self._VT = np.ascontiguousarray(self.db.tuner["V_pinv"].T)
         default_settle = self.db.settling_time()
         self.settle = default_settle if settle is None else float(settle)
-        if not (misfit_sigmas > 0 and stuck_after >= 0 and 0 <= self.settle < np.inf):
-            raise UsageError(f"misfit_sigmas {misfit_sigmas} must be > 0, stuck_after {stuck_after} >= 0 s "
-                             f"and settle {self.settle} finite and >= 0 s")
+        for name, value, ok, want in (("misfit_sigmas", misfit_sigmas, misfit_sigmas > 0, "> 0"),
+                                      ("stuck_after", stuck_after, stuck_after >= 0, ">= 0 s"),
+                                      ("settle", settle, settle is None or 0 <= settle < np.inf, "finite and >= 0 s")):
+            if not ok:
+                raise UsageError(f"{name} {value}: must be {want}")
         self._checks = {"hold": (health_hold, HEALTH_HOLD_RATIO), "misfit": (misfit_sigmas, MISFIT_SIGMAS),
                         "stuck": (stuck_after, STUCK_AFTER), "settle": (self.settle, default_settle)}   # (value, default)
         sd = self._sensor_sd()
@@ -509,9 +510,11 @@ class Estimator:
         y, y_hat = arrays[1], res.outputs["y_hat"]
         with np.errstate(invalid="ignore"):
             hit = np.abs(res.outputs["residual"]) > self._model.gate[0] * np.abs(y_hat)
-        # where the model should fit: started, inside the grid, no implausible channel, no sensor
-        # already left out as stuck (a frozen sensor misfits once its prediction moves)
-        fit = (res.flags & (FLAG_TRIM_OUTSIDE | FLAG_DYN_OUTSIDE | FLAG_NOT_STARTED | FLAG_IMPLAUSIBLE | FLAG_STUCK)) == 0
+        # where the model should fit: started, updated (open loop, every sensor drifts off), inside
+        # the grid, no implausible channel, no sensor already left out as stuck (a frozen sensor
+        # misfits once its prediction moves)
+        fit = (res.flags & (FLAG_TRIM_OUTSIDE | FLAG_DYN_OUTSIDE | FLAG_NOT_STARTED | FLAG_IMPLAUSIBLE | FLAG_STUCK
+                            | FLAG_NO_UPDATE)) == 0
         self._fit_rows += int(fit.sum())
         for i, (c, k) in enumerate(zip(self.db.names["y"], hit.sum(axis=0))):
             self.misfit[c] += int(k)

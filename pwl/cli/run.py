@@ -139,6 +139,8 @@ def run(args) -> int:
     est = Estimator(db, mode, channel_map=args.channel_map, **checks)   # and on options it cannot serve
     select_outputs(est.names, args.outputs, where="--outputs")
     check_every(args.every)
+    if not 0.0 <= args.min_updated <= 1.0:
+        raise UsageError(f"--min-updated {args.min_updated}: a fraction of the samples, 0 to 1")
     if args.dask and args.workers:
         raise UsageError("-j/--workers sizes the local process pool; with --dask the cluster's workers "
                          "run the logs (use --dask local:N for N local workers)")
