@@ -971,6 +971,8 @@ class Estimator:
         units = output_units(self.names, self.db.names, self.db.units)
         self.reset()
         head, part = self._chunks(log_path)
+        if compression in (None, "none") and not os.fspath(out_path).lower().endswith(".csv"):
+            self._check_space(out_path, -(-len(head) // every) * (2 + sum(len(self.names[o]) for o in keep)) * 8)
         if os.fspath(out_path).lower().endswith(".csv") or self._check_interval(head):
             res = self.run(head if head.channels else log_path)
             res.units = units
@@ -990,6 +992,21 @@ class Estimator:
         return totals.counts | {"snapshots": len(snaps), "missing_channels": dict(self.missing), "misfit_channels":
                                 dict(self.misfit), "failed_channels": list(self.failed),
                                 "residual_rms": dict(zip(totals.sensors, totals.residual_rms().tolist()))}
+
+    @staticmethod
+    def _check_space(out_path, need: int) -> None:
+        """An OSError (ENOSPC) naming the file when its disk has less than ``need`` bytes (and 1 MB)
+        free: before the write, since HDF5 failing half-way on a full disk left objects that
+        crashed the process at exit."""
+        import errno
+        import shutil
+        folder = os.path.dirname(os.path.abspath(os.fspath(out_path)))
+        while not os.path.isdir(folder) and os.path.dirname(folder) != folder:   # made when written
+            folder = os.path.dirname(folder)
+        free = shutil.disk_usage(folder).free
+        if free < need + (1 << 20):
+            raise OSError(errno.ENOSPC, f"No space left on device: {os.fspath(out_path)} needs about "
+                                        f"{need / 1e6:.1f} MB, {free / 1e6:.1f} MB free")
 
     def _write_chunks(self, log_path, out_path, head, part, chunk, keep, every, prov, units, compression):
         """:meth:`run_file`'s chunked run of an HDF5 log (``head``, ``part``: :meth:`_chunks`):
