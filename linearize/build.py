@@ -491,6 +491,25 @@ def build(spec: BuildSpec, out_path, *, plant=None, executor: Executor | None = 
     return db
 
 
+def _warn_unseen(pts, h_names, h_sigma, log) -> None:
+    """Log a warning naming every health parameter no sensor sees at any point: its steady-state
+    effect on the sensors, C (I - A)^-1 L + M, in sensor standard deviations for a one-sigma
+    change, below 1e-6 everywhere (the filter cannot estimate it: it stays at its prior)."""
+    seen = np.zeros(len(h_names))
+    for pt in pts:
+        m = pt["mats"]
+        try:
+            G = m["C"] @ np.linalg.solve(np.eye(m["A"].shape[0]) - m["A"], m["L"]) + m["M"]
+        except np.linalg.LinAlgError:      # a pure integrator: no steady state to judge by
+            continue
+        G = G / np.sqrt(np.diag(pt["R"]))[:, None] * h_sigma[None, :]
+        seen = np.maximum(seen, np.linalg.norm(G, axis=0))
+    unseen = [h for h, v in zip(h_names, seen) if v < 1e-6]
+    if unseen:
+        log(f"warning: no sensor sees {', '.join(unseen)} at any operating point (steady-state effect 0): "
+            "the filter cannot estimate it; its estimate stays at its prior")
+
+
 def design_filter(pts, names, dg, dyn_status, n_tuners, method, Ph, targets, progress=False,
                   log=print, executor=None) -> dict:
     """Phases 3-4: tuners V by covariance analysis, then the steady-state gain at every point.
@@ -504,8 +523,15 @@ def design_filter(pts, names, dg, dyn_status, n_tuners, method, Ph, targets, pro
     """
     nx, ny = len(names["x"]), len(names["y"])
     every = names["h"] + names["z"]
+    rho = np.array([np.abs(np.linalg.eigvals(pt["mats"]["A"])).max() for pt in pts])
+    tuned = [pt for pt, r in zip(pts, rho) if r < 1.0] or pts   # the metric's points
+    if len(tuned) < len(pts):
+        log(f"warning: {len(pts) - len(tuned)} of {len(pts)} dynamics points are open-loop unstable (largest "
+            f"|eig A| {rho.max():.4g}): their estimation error has no steady state to rank tuners by, so they "
+            "are left out of the tuner metric (the gains there are still computed)")
+    _warn_unseen(tuned, names["h"], np.sqrt(np.diag(Ph)), log)
     bar = Progress("tuners", 1, progress)
-    V, metric, mse, ranking = select_subset(pts, n_tuners, Ph, targets,
+    V, metric, mse, ranking = select_subset(tuned, n_tuners, Ph, targets,
                                             lambda d, n: (setattr(bar, "total", n), bar.update(d)),
                                             executor=executor)
     bar.finish()
@@ -515,7 +541,7 @@ def design_filter(pts, names, dg, dyn_status, n_tuners, method, Ph, targets, pro
         + ", ".join(f"{[names['h'][j] for j in S]} {m:.4g}" for m, S in ranking[1:3]))
     if method == "optimal":
         bar = Progress("optimal", 40, progress)
-        V, metric, mse = optimal_tuners(pts, V, Ph, targets, progress=lambda d, n: bar.update(d),
+        V, metric, mse = optimal_tuners(tuned, V, Ph, targets, progress=lambda d, n: bar.update(d),
                                         executor=executor)
         bar.finish()
         q_names = [f"q{j + 1}" for j in range(n_tuners)]

@@ -398,3 +398,24 @@ def test_build_will_not_overwrite_a_file_that_is_not_a_database(tmp_path, capsys
     assert code == 2 and "the file exists and is not an HDF5 file" in err[0] and open(path).read() == before
     code, err = run_cli(capsys, "build", path, "-o", str(tmp_path / "x.h5"), "-j", "0", "-q")
     assert code == 2 and "-j 0" in err[0]
+
+
+def test_a_health_parameter_no_sensor_sees_is_named():
+    """Steady-state effect on the sensors C (I - A)^-1 L + M of the second of three health
+    parameters zero at every point (its columns of L and M zero): a warning names it; the
+    others are seen."""
+    from linearize.build import _warn_unseen
+    rng = np.random.default_rng(0)
+    pts = []
+    for _ in range(3):
+        L, M = rng.normal(size=(2, 3)), rng.normal(size=(4, 3))
+        L[:, 1] = M[:, 1] = 0.0
+        pts.append({"mats": {"A": np.diag([0.9, 0.5]), "C": rng.normal(size=(4, 2)), "L": L, "M": M},
+                    "R": np.eye(4) * 1e-4})
+    said = []
+    _warn_unseen(pts, ["h1", "h2", "h3"], np.full(3, 0.02), said.append)
+    assert len(said) == 1 and "no sensor sees h2 at any operating point" in said[0]
+    pts[0]["mats"]["M"][0, 1] = 1e-3
+    said.clear()
+    _warn_unseen(pts, ["h1", "h2", "h3"], np.full(3, 0.02), said.append)
+    assert not said
