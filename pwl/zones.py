@@ -188,7 +188,8 @@ class ZoneTable:
     def from_record(cls, record, where: str = "/zones") -> "ZoneTable":
         """Check and unpack a record read by :func:`read_zones`."""
         if record is None:
-            raise ZoneError(f"{where}: the database has no zones record")
+            raise ZoneError(f"{where}: the database has no zones record (make a zoned copy with "
+                            "'pwl zones --database DB --out ZONED.h5' and run ZONED.h5 with --mode zones)")
         arrays, attrs = record
         check(ZONES_RECORD, where, attrs, error=ZoneError, hint="build zones with linearize.zones")
         need = ("centers", "gains", "scale", "counts", "lookup_bp", "lookup_off", "lookup_labels")
