@@ -19,7 +19,7 @@ import os
 import socket
 import sys
 import threading
-from concurrent.futures import Future, as_completed
+from concurrent.futures import BrokenExecutor, Future, as_completed
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -443,8 +443,11 @@ def _each_result(executor, job: Job, logs, outs, batch: int = 1):
             try:
                 items = fut.result()
             except Exception as e:  # the worker itself was lost (killed process, lost Dask worker)
-                items = [LogRun(logs[i], outs[i], None, f"{type(e).__name__}: {e}", FAILED, {})
-                         for i in range(a, min(a + batch, len(logs)))]
+                why = f"{type(e).__name__}: {e}"
+                if isinstance(e, BrokenExecutor):   # every log not finished fails with the pool
+                    why = (f"{type(e).__name__}: a worker process died (killed, out of memory?) before this log "
+                           "was done; a rerun resumes with the logs not done")
+                items = [LogRun(logs[i], outs[i], None, why, FAILED, {}) for i in range(a, min(a + batch, len(logs)))]
             for k, item in enumerate(items):
                 yield a + k, item
     finally:   # stopped early (the caller gave up): the tasks not started are not run
