@@ -405,7 +405,8 @@ def build(spec: BuildSpec, out_path, *, plant=None, executor: Executor | None = 
             raise SpecError(f"{spec.path}: [build] perturbation {k} = {v}: must be a finite size > 0")
     noise = dict(getattr(plant, "sensor_noise", None) or {})
     noise.update(spec.r)
-    r_frac = per_channel(noise, names["y"], "sensor noise [kalman] r", spec.path, positive=True)
+    r_frac = per_channel(noise, names["y"], "sensor noise (the plant's sensor_noise, then [kalman] r)", spec.path,
+                         positive=True)
     q_x = per_channel(spec.q_x, names["x"], "[kalman] q_x", spec.path)
     q_h = per_channel(spec.q_h, names["h"], "[kalman] q_h", spec.path)
     h_sig = per_channel(spec.health_sigma, names["h"], "[tuners] health_sigma", spec.path, positive=True)

@@ -1,7 +1,8 @@
 """pwl trend RESULTS...: one engine's health over its flights, trend lines and the diagnosis."""
 HELP = ("health trends (in percent) and fault diagnosis of one engine over its flights (results files "
         "of pwl run, in any order: sorted by flight_time, then flight_index, then file name); exit "
-        "status 1 when a fault is detected at the latest flight")
+        "status 1 when a fault is detected at the latest flight, or a results file could not be read "
+        "(skipped and named)")
 
 
 def add_arguments(p):
@@ -26,7 +27,7 @@ def run(args) -> int:
     from .output import check_output, plot_or_note
 
     check_output(args.plot)
-    records, _ = read_flights(results_files(args.results))
+    records, skipped = read_flights(results_files(args.results))
     if len(records) < 2:
         print("pwl trend: a trend needs at least two flights", file=sys.stderr)
         return 2
@@ -35,7 +36,7 @@ def run(args) -> int:
         print(f"pwl: warning: {line}", file=sys.stderr)
     fleet = read_flights(results_files(args.fleet))[0] if args.fleet else None
     engines = group_engines(records)
-    status = 0
+    status = int(bool(skipped))       # as pwl fleet diagnose: a file it could not read is a finding
     for i, (eng, recs) in enumerate(engines.items()):
         tr = engine_trend(recs, db, fleet=fleet)
         print(("\n" if i else "") + tr.table())
