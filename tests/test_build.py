@@ -277,7 +277,7 @@ def test_bad_specs_are_named(extra, msg):
     (("q_h = 1e-4", "q_h = -1e-4"), r"\[kalman\] q_h for 'h1' is -0.0001: a standard deviation, it must be finite and >= 0"),
     (("q_x = 1e-3", "q_x = nan"), r"\[kalman\] q_x for 'x1' is nan"),
     (("n = 2", "n = 2\nhealth_sigma = 0"), r"\[tuners\] health_sigma for 'h1' is 0.0: .* > 0"),
-    (("q_h = 1e-4", "q_h = 1e-4\nr = {y1 = -0.01}"), r"sensor noise \[kalman\] r for 'y1' is -0.01"),
+    (("q_h = 1e-4", "q_h = 1e-4\nr = {y1 = -0.01}"), r"sensor noise \(the plant's sensor_noise, then \[kalman\] r\) for 'y1' is -0.01"),
 ])
 def test_noise_sigmas_that_are_not_standard_deviations_are_named(tmp_path, change, msg):
     s = BuildSpec.parse(SPEC.format(method="subset").replace(*change), "sig.toml")
