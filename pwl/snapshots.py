@@ -21,6 +21,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from numba import njit
+
 from .h5io import read_strings, write_strings
 
 SNAPSHOT_OUTPUTS = ("h_hat", "q_hat", "z_hat")
@@ -89,6 +91,31 @@ class Snapshots:
                    outs, {k: read_strings(group["names_" + k]) for k in outs})
 
 
+@njit(cache=True, nogil=True)
+def block_sums(a, starts, squares, out, c0):
+    """Per block b of rows starts[b]..starts[b+1] (the last to the end) of a (k, m): the finite
+    count, the sum and, with ``squares``, the sum of squares of every column (a value whose
+    square overflows counts as missing then), into out[b, c0 + (0, m, 2m) + j], row by row in
+    order (as ``np.add.reduceat`` adds them). Returns the next free column."""
+    k, m = a.shape
+    nb = starts.shape[0]
+    for b in range(nb):
+        e = starts[b + 1] if b + 1 < nb else k
+        for j in range(m):
+            n, s, q = 0.0, 0.0, 0.0
+            for i in range(starts[b], e):
+                v = a[i, j]
+                if np.isfinite(v * v if squares else v):
+                    n += 1.0
+                    s += v
+                    q += v * v
+            out[b, c0 + j] = n
+            out[b, c0 + m + j] = s
+            if squares:
+                out[b, c0 + 2 * m + j] = q
+    return c0 + (3 if squares else 2) * m
+
+
 class SnapshotAccumulator:
     """Block sums of one flight, fed chunk by chunk; :meth:`snapshots` finds the steady windows.
 
@@ -119,14 +146,14 @@ class SnapshotAccumulator:
             return
         blk = (start + np.arange(k)) // self.bs
         starts = np.r_[0, np.flatnonzero(np.diff(blk)) + 1]
-        cols = [np.ones((k, 1)), np.asarray(outside, dtype=np.float64).reshape(k, 1)]
-        for a, squares in [(raw, True), (p, False)] + [(outputs[o], False) for o in self.output_names]:
-            a = np.asarray(a, dtype=np.float64).reshape(k, -1)
-            with np.errstate(over="ignore", invalid="ignore"):
-                ok = np.isfinite(a * a if squares else a)   # a value whose square overflows is missing
-            z = np.where(ok, a, 0.0)
-            cols += [ok.astype(np.float64), z] + ([z * z] if squares else [])
-        rows = np.add.reduceat(np.concatenate(cols, axis=1), starts, axis=0)
+        parts = [(np.ascontiguousarray(a, dtype=np.float64).reshape(k, -1), sq) for a, sq in
+                 [(raw, True), (p, False)] + [(outputs[o], False) for o in self.output_names]]
+        rows = np.empty((starts.size, 2 + sum((3 if sq else 2) * a.shape[1] for a, sq in parts)))
+        rows[:, 0] = np.diff(np.r_[starts, k])
+        rows[:, 1] = np.add.reduceat(np.asarray(outside, dtype=np.float64), starts)
+        c = 2
+        for a, sq in parts:
+            c = block_sums(a, starts, sq, rows, c)
         t = np.asarray(time, dtype=np.float64)
         ends = np.r_[starts[1:] - 1, k - 1]
         ids = blk[starts]
