@@ -288,14 +288,12 @@ def _plant_code(plant) -> str:
     """A digest of the plant's code: every .py file of the top-level package its class is defined
     in (or its module's file alone), so results kept from a build of the plant before an edit
     are not reused (a resumed build reused trims of the old code: outputs x2 stored as before)."""
-    mod = sys.modules.get(type(plant).__module__)
-    path = getattr(mod, "__file__", None)
+    path = getattr(sys.modules.get(type(plant).__module__), "__file__", None)
     if not path:
         return ""
-    top = type(plant).__module__.split(".")[0]
-    root = getattr(sys.modules.get(top), "__file__", None) if "." in type(plant).__module__ or \
-        os.path.basename(path) == "__init__.py" else None
-    files = sorted(glob.glob(os.path.join(os.path.dirname(root), "**", "*.py"), recursive=True)) if root else [path]
+    top = sys.modules.get(type(plant).__module__.split(".")[0])
+    folders = list(getattr(top, "__path__", []))          # a package: all of it
+    files = sorted(f for d in folders for f in glob.glob(os.path.join(d, "**", "*.py"), recursive=True)) or [path]
     h = hashlib.sha256()
     for f in files:
         with open(f, "rb") as fh:

@@ -17,8 +17,8 @@ from .h5io import atomic_h5
 from .logs import (Log, LogError, check_time, read_header, read_log, read_rows, resample, rows_missing, sample_interval,
                    time_gaps)
 from .runtime import (FLAG_DYN_OUTSIDE, FLAG_HEALTH_HELD, FLAG_IMPLAUSIBLE, FLAG_NO_UPDATE, FLAG_NOT_STARTED,
-                      FLAG_SETTLING, FLAG_STUCK, FLAG_TRIM_OUTSIDE, HEALTH_HOLD_RATIO, MISFIT_SIGMAS, STUCK_AFTER, STUCK_SIGMAS, Bias, Filter, Inputs, Outputs, PackedModel, blank_implausible,
-                      filter_loop, report, screen, spike_mask, burst_mask, state_layout)
+                      FLAG_SETTLING, FLAG_STUCK, FLAG_TRIM_OUTSIDE, HEALTH_HOLD_RATIO, MISFIT_SIGMAS, STUCK_AFTER,
+                      STUCK_SIGMAS, Bias, Filter, Inputs, Outputs, PackedModel, blank_implausible, filter_loop, report, screen, spike_mask, burst_mask, state_layout)
 from .results import LOG_ATTRS, Result, append_rows, init_result_file
 from .snapshots import SNAPSHOT_OUTPUTS, SnapshotAccumulator, SteadyConfig
 from .errors import PwlError, PwlWarning, UsageError
@@ -499,9 +499,9 @@ class Estimator:
         std = [1.0, 1.0, 1.0, corr.T_std if corr else 1.0, corr.P_std if corr else 1.0]
         for cols, a, sc in zip(self._columns(), arrays, std):
             for j, c in enumerate(cols):
-                lo, hi = self.ranges.get(c, (-np.inf, np.inf))
-                if c is None or a is None:
+                if c is None or a is None or not self.implausible.get(c):   # screen() counted none
                     continue
+                lo, hi = self.ranges.get(c, (-np.inf, np.inf))
                 with np.errstate(over="ignore", invalid="ignore"):  # spikes (_SPIKE) overflow: inf
                     v = (a[:, j] if a.ndim == 2 else a) * sc
                     v = v[np.isfinite(v) & ((v < lo) | (v > hi))]
@@ -634,12 +634,21 @@ class Estimator:
             log = read_log(log, channel_map=self.channel_map)
         self._warn_absent(log)
         if reset:
-            self.failed = []
-        res = self._run_log(log, reset)
-        if reset and self._failed_sensors(log.path):
-            res = self._run_log(log, True)
+            res = self._without_failed(log.path, lambda: self._run_log(log, True))
+        else:
+            res = self._run_log(log, False)
         self._warn_channels(log.path, len(res.time))
         return res
+
+    def _without_failed(self, path, once):
+        """``once()`` (a run from a reset), and again, from a reset, without the sensors that
+        failed for the log (:meth:`_failed_sensors`) when there are any; its result."""
+        self.failed = []
+        out = once()
+        if self._failed_sensors(path):
+            self.reset()
+            out = once()
+        return out
 
     def _run_log(self, log: Log, reset: bool) -> Result:
         """:meth:`run` once (the sensors of :attr:`failed` left out), without the channel warnings."""
@@ -983,11 +992,7 @@ class Estimator:
         else:
             self._warn_absent(head)
             args = (log_path, out_path, head, part, chunk, keep, every, self.provenance | record, units, compression)
-            self.failed = []
-            totals, snaps = self._write_chunks(*args)
-            if self._failed_sensors(log_path):
-                self.reset()
-                totals, snaps = self._write_chunks(*args)
+            totals, snaps = self._without_failed(log_path, lambda: self._write_chunks(*args))
             self._warn_channels(log_path, len(head))
         return totals.counts | {"snapshots": len(snaps), "missing_channels": dict(self.missing), "misfit_channels":
                                 dict(self.misfit), "failed_channels": list(self.failed),

@@ -395,6 +395,12 @@ def wear_reference(series: list[EngineSeries], Sigma: np.ndarray,
     return _fleet_norm(series, Sigma, cfg, slope)
 
 
+def fleet_norms(series: list[EngineSeries], Sigma: np.ndarray, cfg: DiagnosisConfig = DiagnosisConfig()) -> tuple:
+    """(normal wear (None without ``cfg.wear``), normal level) an engine of ``series`` is judged
+    against (:func:`wear_reference`, :func:`level_reference`)."""
+    return (wear_reference(series, Sigma, cfg) if cfg.wear else None), level_reference(series, Sigma, cfg)
+
+
 def level_reference(series: list[EngineSeries], Sigma: np.ndarray,
                     cfg: DiagnosisConfig = DiagnosisConfig()) -> FleetNorm | None:
     """The fleet's normal health when its engines' records begin (:func:`_fleet_norm`): each
@@ -746,31 +752,35 @@ def _copy_key(r: FlightRecord) -> tuple:
     return r.engine, r.order[:2], s.t0.tobytes(), s.samples.tobytes(), s.mean.tobytes()
 
 
+def _first_of_each_flight(records: list[FlightRecord]) -> tuple[list, dict]:
+    """(the records without copies, in time order; copy -> the record it repeats): a copy has the
+    :func:`_copy_key` of a record before it."""
+    first: dict = {}
+    kept, repeats = [], {}
+    for r in sorted(records, key=lambda r: r.order):
+        k = _copy_key(r)
+        if k in first:
+            repeats[r.source] = first[k]
+        else:
+            first[k] = r
+            kept.append(r)
+    return kept, repeats
+
+
 def copies(records: list[FlightRecord]) -> list[str]:
     """A line for every flight whose results are a copy of another's (the same engine, flight
     time, flight index and snapshots: a log sent twice under two names), which
     :func:`group_engines` leaves out."""
-    first: dict = {}
-    out = []
-    for r in sorted(records, key=lambda r: r.order):
-        k = _copy_key(r)
-        if k in first:
-            out.append(f"engine {r.engine}: {r.source} repeats {first[k].source} (the same flight time, "
-                       "index and snapshots: one flight sent twice?): left out")
-        first.setdefault(k, r)
-    return out
+    return [f"engine {orig.engine}: {src} repeats {orig.source} (the same flight time, index and snapshots: "
+            "one flight sent twice?): left out" for src, orig in _first_of_each_flight(records)[1].items()]
 
 
 def group_engines(records: list[FlightRecord]) -> dict[str, list[FlightRecord]]:
     """Engine -> its flights, in natural order of the engine names; a copy of a flight already
     there (:func:`copies`) is left out, so flight numbers and fits count each flight once."""
     out: dict[str, list[FlightRecord]] = {}
-    seen = set()
-    for r in sorted(records, key=lambda r: r.order):
-        k = _copy_key(r)
-        if k not in seen:
-            seen.add(k)
-            out.setdefault(r.engine, []).append(r)
+    for r in _first_of_each_flight(records)[0]:
+        out.setdefault(r.engine, []).append(r)
     return {k: out[k] for k in sorted(out, key=_natural)}
 
 
@@ -798,8 +808,7 @@ def diagnose_fleet(records: list[FlightRecord], db: GainDatabase,
     sig, centers = prepare(records, db)
     series = [engine_series(v, sig, len(centers)) for v in group_engines(records).values()]
     Sigma = noise_covariance(series, cfg.floor)
-    wear = wear_reference(series, Sigma, cfg) if cfg.wear else None
-    level = level_reference(series, Sigma, cfg)
+    wear, level = fleet_norms(series, Sigma, cfg)
     rows = []
     for es in series:
         rows += diagnose_engine(es, Sigma, cfg, wear, level)

@@ -22,9 +22,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..database import GainDatabase
-from .diagnose import (DiagnosisConfig, Decision, FlightRecord, diagnose_engine, engine_series, group_engines,
-                       level_reference, noise_covariance, prepare, recoveries,
-                       wear_reference)
+from .diagnose import (DiagnosisConfig, Decision, FlightRecord, diagnose_engine, engine_series, fleet_norms,
+                       group_engines, noise_covariance, prepare, recoveries)
 
 
 @dataclass
@@ -176,8 +175,7 @@ def engine_trend(records: list[FlightRecord], db: GainDatabase,
     if others:
         series = [es] + [engine_series(v, sig, len(centers)) for v in group_engines(others).values()]
         Sigma = noise_covariance(series, cfg.floor)
-        wear = wear_reference(series, Sigma, cfg) if cfg.wear else None
-        level = level_reference(series, Sigma, cfg)
+        wear, level = fleet_norms(series, Sigma, cfg)
     else:
         Sigma = noise_covariance([es], cfg.floor)
     dec = diagnose_engine(es, Sigma, cfg, wear, level)
