@@ -688,6 +688,13 @@ def _read_csv(path, cmap) -> Log:
     unit_row = _unit_row(split(first), cells)
     skiprows = list(range(skip)) + ([skip + 1] if unit_row else [])
     if unit_row:
+        from .units import known
+        odd = {c.strip(): u for c, u in zip(cells, unit_row) if u and known(u) is None}
+        if odd:     # "EU", "eng units", a description: no unit said
+            warnings.warn(PwlWarning(f"{path}: row {skip + 2} is read as the columns' units; not units pwl knows, "
+                                     f"so taken as undeclared: " + ", ".join(f"{c} {u!r}" for c, u in odd.items())),
+                          stacklevel=3)
+            unit_row = ["" if known(u) is None else u for u in unit_row]
         cells = [c if _split_header(c)[1] or not u.strip() else f"{c.strip()}[{u.strip()}]"
                  for c, u in zip(cells, unit_row)]
         first = lines[skip + 2] if skip + 2 < len(lines) else ""
@@ -707,9 +714,8 @@ def _read_csv(path, cmap) -> Log:
 
 
 def _unit_row(row: list[str], header: list[str]) -> list[str] | None:
-    """``row`` if it is a row of units under ``header``: as many cells, none a number, and more
-    than half of the non-empty ones units pwl knows; else None."""
-    from .units import known
+    """``row``'s cells (stripped of brackets) if it is a row of units under ``header``: as many
+    cells, none a number; else None."""
     if len(row) != len(header):
         return None
     cells = [c.strip().strip("[]()") for c in row]
@@ -722,7 +728,7 @@ def _unit_row(row: list[str], header: list[str]) -> list[str] | None:
             return False
     if not full or any(number(c) for c in full):
         return None
-    return cells if sum(known(c) is not None for c in full) * 2 > len(full) else None
+    return cells
 
 
 def _open_text(path):

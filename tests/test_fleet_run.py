@@ -18,6 +18,7 @@ from pwl.errors import UsageError
 from pwl.estimator import Estimator
 from pwl.fleet.runs import (FAILED, OK, SKIPPED, read_summary, run_many, summary_rows,
                            write_summary)
+from pwl.fleet.runs import run_log as _run_log
 from pwl.logs import Log, read_log, write_log
 from pwl.results import FLAG_COUNTS, Result
 from pwl.runtime import FLAG_NO_UPDATE, FLAG_NOT_STARTED
@@ -227,6 +228,35 @@ def test_run_many_own_pool_is_one_whose_workers_die_with_it(tmp_path, monkeypatc
     logs = [slice_log(tmp_path / "logs" / f"f{i}.h5", "flight_new", 3000 * i, n=600) for i in range(2)]
     res = run_many(DB, logs, tmp_path / "out", workers=2)
     assert made == [2] and {r.status for r in res} == {OK}
+
+
+def _run_log_that_kills_workers(job, log_path, out_path):
+    """run_log, except that a log named ``killer`` kills its worker process every time and one
+    named ``flaky`` the first time only (a worker the kernel killed for memory other logs held)."""
+    name = os.path.basename(log_path)
+    first = os.path.join(os.path.dirname(out_path), "flaky-died")
+    if name.startswith("killer") or (name.startswith("flaky") and not os.path.exists(first)):
+        if name.startswith("flaky"):
+            open(first, "w").close()
+        os.kill(os.getpid(), signal.SIGKILL)
+    return _run_log(job, log_path, out_path)
+
+
+def test_a_worker_killed_fails_only_the_log_that_kills_it(tmp_path, monkeypatch):
+    """A worker process that dies breaks the whole pool: the logs in it run again, each alone, on a
+    fresh pool; only a log whose worker dies while it runs alone fails, and it says why."""
+    import pwl.fleet.runs as runs
+    names = ["flaky", "a", "killer", "b", "c", "d"]        # flaky dies first, in a full pool
+    logs = [slice_log(tmp_path / "logs" / f"{n}.h5", "flight_new", 2000 * i, n=600) for i, n in enumerate(names)]
+    monkeypatch.setattr(runs, "run_log", _run_log_that_kills_workers)
+    res = run_many(DB, logs, tmp_path / "out", workers=2)
+    assert [r.status for r in res] == [OK, OK, FAILED, OK, OK, OK], [r.error for r in res]
+    assert res[2].error == runs.WORKER_DIED
+    assert os.path.exists(tmp_path / "out" / "flaky-died")      # it did die once, then ran alone
+    monkeypatch.undo()
+    serial = run_many(DB, [logs[i] for i in (0, 1)], tmp_path / "serial", workers=1)
+    for s, p in zip(serial, res):
+        assert_same_results(s.output, p.output)
 
 
 def test_killed_run_then_rerun_repeats_no_finished_flight(tmp_path):

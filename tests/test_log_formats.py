@@ -13,6 +13,7 @@ import scipy.io
 from pwl.channel_map import ChannelMap, ChannelMapError
 from pwl.demo_data import demo_paths
 from pwl.estimator import Estimator
+from pwl.errors import PwlWarning
 from pwl.logs import Log, LogError, read_log, write_log
 
 M = 4000          # samples of the demo flight used (60 s at 15 ms: past the filter's 27 s settling)
@@ -121,6 +122,25 @@ def test_csv_variants_read_as_the_hdf5_log(demo, tmp_path, variant):
     assert_same_log(log, ref, tol)
     if variant == "timestamp":
         assert log.attrs["start_time"] == "2024-03-05T10:00:00+01:00"
+
+
+def test_a_units_row_of_unknown_units_is_read_as_no_units_with_a_warning(demo, tmp_path):
+    """A second row of text ("EU" for engineering units, a description) is not data: the log reads
+    as without units, and a warning names the cells pwl does not know; known cells still count."""
+    est, h5, ref, _ = demo
+    df = frame(ref)
+    head = [c.split("[")[0] for c in df.columns]
+    units = ["s"] + ["EU"] * (len(head) - 2) + ["K" if head[-1].startswith("T") else "EU"]
+    df.to_csv(tmp_path / "log.csv", index=False)
+    text = (tmp_path / "log.csv").read_text().splitlines()
+    (tmp_path / "log.csv").write_text("\n".join([",".join(head), ",".join(units)] + text[1:]) + "\n")
+    with pytest.warns(PwlWarning, match=r"row 2 is read as the columns' units; not units pwl knows, so taken "
+                                        rf"as undeclared: {head[1]} 'EU'"):
+        log = read_log(tmp_path / "log.csv")
+    assert {k: u for k, u in log.units.items() if u} == ({head[-1]: "K"} if units[-1] == "K" else {})
+    np.testing.assert_array_equal(log.time, ref.time)
+    for k in ref.channels:
+        np.testing.assert_array_equal(log.channels[k], ref.channels[k], err_msg=k)
 
 
 def test_timestamps_across_a_change_of_utc_offset_are_continuous(tmp_path):

@@ -19,7 +19,8 @@ import os
 import socket
 import sys
 import threading
-from concurrent.futures import BrokenExecutor, Future, as_completed
+from collections import deque
+from concurrent.futures import FIRST_COMPLETED, BrokenExecutor, Future, as_completed, wait
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -372,24 +373,24 @@ def run_many(db_path, log_paths, outdir, workers: int | None = None, csv: bool =
     os.makedirs(outdir, exist_ok=True)
     lock = lock_folder(outdir)
     remove_stale_temporaries(outs)
-    own = None
     if executor is None:
         n = max(1, min(len(logs), workers or os.cpu_count() or 1))
-        executor = own = process_pool(n) if n > 1 else None   # workers die with this process
-    batch = DASK_BATCH if hasattr(executor, "get_executor") else 1
-    if batch > 1:                                  # a dask.distributed.Client
-        executor = executor.get_executor(pure=False)
+        each = _each_result_own_pool(n, job, logs, outs) if n > 1 else _each_result(None, job, logs, outs)
+    else:
+        batch = DASK_BATCH if hasattr(executor, "get_executor") else 1
+        if batch > 1:                                  # a dask.distributed.Client
+            executor = executor.get_executor(pure=False)
+        each = _each_result(executor, job, logs, outs, batch)
     results: list = [None] * len(logs)
     try:
-        for done, (i, item) in enumerate(_each_result(executor, job, logs, outs, batch), 1):
+        for done, (i, item) in enumerate(each, 1):
             results[i] = item
             if progress:
                 progress(done, len(logs), item)
             if item.error and item.error.startswith(DISK_FULL):
                 raise _stopped_by_full_disk(item, results, outdir)
     finally:
-        if own is not None:
-            own.shutdown(cancel_futures=True)
+        each.close()           # stops the pool of this run, if any
         if lock is not None:
             lock.close()
     return results
@@ -453,6 +454,66 @@ def _each_result(executor, job: Job, logs, outs, batch: int = 1):
     finally:   # stopped early (the caller gave up): the tasks not started are not run
         for fut in futs:
             fut.cancel()
+
+
+#: what a log's LogRun says when its worker process died with it alone in the pool
+WORKER_DIED = ("a worker process died (killed, out of memory?) while it ran this log, also when the log "
+               "ran alone; the other logs are done")
+
+
+def _each_result_own_pool(workers: int, job: Job, logs, outs):
+    """(index, LogRun) of every log as it finishes, on a pool of ``workers`` processes that end
+    with this one (:func:`pwl.workers.process_pool`).
+
+    At most ``2 * workers`` logs are in the pool at once. When a worker process dies (killed, out
+    of memory) the pool breaks and fails every log in it: a fresh pool takes over, and the logs
+    that were in the broken pool run again, each alone. A log whose worker dies while it runs
+    alone fails (:data:`WORKER_DIED`); no other log is lost."""
+    todo = deque(range(len(logs)))
+    suspect: set[int] = set()          # in a pool that broke: runs again alone
+    running: dict = {}                 # future -> log index
+    pool = process_pool(workers)
+
+    def may_submit() -> bool:
+        if not todo or len(running) >= 2 * workers or suspect.intersection(running.values()):
+            return False
+        return todo[0] not in suspect or not running
+
+    try:
+        while todo or running:
+            while may_submit():
+                i = todo.popleft()
+                running[pool.submit(run_log, job, logs[i], outs[i])] = i
+            done, _ = wait(running, return_when=FIRST_COMPLETED)
+            if not any(isinstance(f.exception(), BrokenExecutor) for f in done):
+                for fut in done:
+                    i = running.pop(fut)
+                    yield i, _task_result(fut, logs[i], outs[i])
+                continue
+            wait(running)               # a broken pool fails everything in it at once
+            lost = sorted(i for f, i in running.items() if isinstance(f.exception(), BrokenExecutor))
+            for fut, i in list(running.items()):
+                if i not in lost:
+                    yield i, _task_result(fut, logs[i], outs[i])
+            running.clear()
+            pool.shutdown(wait=True)
+            if len(lost) == 1 and lost[0] in suspect:
+                yield lost[0], LogRun(logs[lost[0]], outs[lost[0]], None, WORKER_DIED, FAILED, {})
+            else:
+                suspect.update(lost)
+                todo.extendleft(reversed(lost))
+            if todo:
+                pool = process_pool(workers)
+    finally:
+        pool.shutdown(cancel_futures=True)
+
+
+def _task_result(fut, log: str, out: str) -> LogRun:
+    """The LogRun a finished :func:`run_log` task returned, or a failed one when it raised."""
+    try:
+        return fut.result()
+    except Exception as e:
+        return LogRun(log, out, None, f"{type(e).__name__}: {e}", FAILED, {})
 
 
 # ---- the fleet summary ---------------------------------------------------------------------------
