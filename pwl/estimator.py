@@ -11,12 +11,13 @@ import warnings
 
 import numpy as np
 
+from .airdata import air_data_channels, disagree, inlet_pressure
 from .database import GainDatabase
 from .grid import Axis, Grid
 from .h5io import atomic_h5
 from .logs import (Log, LogError, check_time, read_header, read_log, read_rows, resample, rows_missing, sample_interval,
                    time_gaps)
-from .runtime import (FLAG_DYN_OUTSIDE, FLAG_HEALTH_HELD, FLAG_IMPLAUSIBLE, FLAG_NO_UPDATE, FLAG_NOT_STARTED,
+from .runtime import (FLAG_AIR_DATA, FLAG_DYN_OUTSIDE, FLAG_HEALTH_HELD, FLAG_HELD_INPUT, FLAG_IMPLAUSIBLE, FLAG_NO_UPDATE, FLAG_NOT_STARTED,
                       FLAG_SETTLING, FLAG_STUCK, FLAG_TRIM_OUTSIDE, HEALTH_HOLD_RATIO, MISFIT_SIGMAS, STUCK_AFTER,
                       STUCK_SIGMAS, Bias, Filter, Inputs, Outputs, PackedModel, blank_implausible, filter_loop, report, screen, spike_mask, burst_mask, state_layout)
 from .results import LOG_ATTRS, Result, append_rows, init_result_file
@@ -41,6 +42,39 @@ SPIKE_REACH = max(SPIKE_WIDTH, BURST_MAX + 1)
 #: what a spike is replaced with: outside every plausible range, so screen() counts and flags it
 #: as implausible (FLAG_IMPLAUSIBLE) and the filter holds that channel's last value
 _SPIKE = np.finfo(np.float64).max
+
+
+#: a channel logged at a lower rate than the log's rows (empty between its samples: a flight data
+#: recorder's 1-8 Hz words in a 66 Hz export) is held between its samples: at least LOW_RATE_SHARE
+#: of its rows empty, and nine in ten of the steps between its samples at most twice their median,
+#: which is at most LOW_RATE_GAP seconds. Left empty, the operating point had no snapshot, and
+#: sensors logged in turn left two or more out on every row: health never estimated
+LOW_RATE_SHARE = 0.4
+LOW_RATE_GAP = 1.0
+
+
+def hold_low_rate(a: np.ndarray, max_rows: int) -> dict[int, int]:
+    """In place: every low-rate column of ``a`` (n, k) (:data:`LOW_RATE_SHARE`; its samples at most
+    ``max_rows`` rows apart) holds each sample over the empty rows after it, up to twice the
+    median step between its samples (a longer gap stays empty: a dropout). Returns column ->
+    median step (rows) of the columns held."""
+    held = {}
+    n = a.shape[0]
+    rows = np.arange(n)
+    for j in range(a.shape[1]):
+        ok = np.isfinite(a[:, j])
+        idx = np.flatnonzero(ok)
+        if idx.size < 3 or idx.size > (1.0 - LOW_RATE_SHARE) * n:
+            continue
+        steps = np.diff(idx)
+        med = int(np.median(steps))
+        if not 2 <= med <= max_rows or np.mean(steps <= 2 * med) < 0.9:
+            continue
+        last = np.maximum.accumulate(np.where(ok, rows, -1))
+        fill = ~ok & (last >= 0) & (rows - last <= 2 * med)
+        a[fill, j] = a[last[fill], j]
+        held[j] = med
+    return held
 
 
 def spikes(a: np.ndarray, span: np.ndarray, width: int = SPIKE_WIDTH, fraction: float = SPIKE_FRACTION,
@@ -176,6 +210,7 @@ class Estimator:
         self.channel_units = units | {c: u for c, (u, _, _) in lc.items()}
         self.ranges = {c: (lo, hi) for c, (_, lo, hi) in lc.items()}
         self._limits = self._column_limits()
+        self._air = air_data_channels(self.pm.schedule_channels, self.channel_units, self.pm.delta_channel)
         self._VT = np.ascontiguousarray(self.db.tuner["V_pinv"].T)
         default_settle = self.db.settling_time()
         self.settle = default_settle if settle is None else float(settle)
@@ -322,6 +357,8 @@ class Estimator:
         self.misfit = dict.fromkeys(self.db.names["y"], 0)
         self.implausible = dict.fromkeys(self.input_channels, 0)
         self._evidence = {}      # channel or ("misfit", sensor) -> kept values (_checked)
+        self.low_rate = {}       # channel logged at a lower rate -> its step, s (_hold_low_rate)
+        self.air_data = 0        # samples whose scheduling and inlet pressure disagree (_check_air_data)
         self._fit_rows, self._misfit_in = 0, {}   # samples where the model should fit, misfits there
         na = len(self.db.trim_grid.axes)   # samples outside the trim grid; each axis's extremes (_accumulate)
         self._envelope = [0, np.full(na, np.inf), np.full(na, -np.inf)]
@@ -495,6 +532,7 @@ class Estimator:
         channel's implausible values and every sensor's misfitting ones with their predictions
         kept (:attr:`EVIDENCE` per chunk) for the warnings."""
         self._check_envelope(res.flags, res.time, path)
+        self._check_air_data(res.flags, arrays)
         corr = self.db.correction
         std = [1.0, 1.0, 1.0, corr.T_std if corr else 1.0, corr.P_std if corr else 1.0]
         for cols, a, sc in zip(self._columns(), arrays, std):
@@ -514,7 +552,7 @@ class Estimator:
         # the grid, no implausible channel, no sensor already left out as stuck (a frozen sensor
         # misfits once its prediction moves)
         fit = (res.flags & (FLAG_TRIM_OUTSIDE | FLAG_DYN_OUTSIDE | FLAG_NOT_STARTED | FLAG_IMPLAUSIBLE | FLAG_STUCK
-                            | FLAG_NO_UPDATE)) == 0
+                            | FLAG_NO_UPDATE | FLAG_AIR_DATA)) == 0
         self._fit_rows += int(fit.sum())
         for i, (c, k) in enumerate(zip(self.db.names["y"], hit.sum(axis=0))):
             self.misfit[c] += int(k)
@@ -522,6 +560,24 @@ class Estimator:
             if k:
                 rows = np.flatnonzero(hit[:, i])[: self.EVIDENCE]
                 self._evidence.setdefault(("misfit", c), []).append(np.column_stack([y[rows, i], y_hat[rows, i]]))
+
+    def _check_air_data(self, flags, arrays) -> None:
+        """Flag FLAG_AIR_DATA on the started samples, no input held, whose pressure altitude, Mach
+        and inlet total pressure disagree (:func:`pwl.airdata.disagree`); count them and keep
+        some (altitude m, Mach, P2 Pa) for the warning."""
+        if self._air is None:
+            return
+        ja, jm, ka, kp = self._air
+        _, _, S, _, DE = arrays
+        p2 = DE * (self.db.correction.P_std * kp)
+        off = disagree(S[:, ja] * ka, S[:, jm], p2) & ((flags & (FLAG_NOT_STARTED | FLAG_HELD_INPUT)) == 0)
+        if off.any():
+            flags[off] |= FLAG_AIR_DATA
+            self.air_data += int(off.sum())
+            rows = np.flatnonzero(off)[: self.EVIDENCE]
+            alt = S[rows, ja] * ka
+            self._evidence.setdefault("air_data", []).append(np.column_stack(
+                [np.log(p2[rows] / inlet_pressure(alt, S[rows, jm])), alt, S[rows, jm], p2[rows]]))
 
     def _typical(self, key):
         """Median of the values kept for ``key`` (:meth:`_checked`), per column."""
@@ -556,6 +612,15 @@ class Estimator:
             warnings.warn(f"{path}: {k} of {n} samples outside the database's grid, {far}: the model there "
                           f"is {how} the grid's edge (the farther out, the less its estimates hold); a "
                           "database built over the log's envelope fixes it", PwlWarning, stacklevel=4)
+        if self.air_data >= max(n, 1) / 100:
+            kept = np.concatenate(self._evidence["air_data"])
+            _, alt, mach, p2 = kept[np.argsort(kept[:, 0])[kept.shape[0] // 2]]      # the median disagreement
+            sa, sm = (self.pm.schedule_channels[j] for j in self._air[:2])
+            warnings.warn(f"{path}: {sa!r}, {sm!r} and {self.pm.delta_channel!r} disagree on {self.air_data} of {n} "
+                          f"samples: typically {p2 / 1e3:.4g} kPa inlet pressure where pressure altitude {alt:.5g} m "
+                          f"and Mach {mach:.3g} give {inlet_pressure(alt, mach) / 1e3:.4g} kPa (standard "
+                          f"atmosphere): a wrong, frozen or missing altitude or Mach (logged as 0?), or a "
+                          f"wrong inlet pressure? Those samples are not trusted", PwlWarning, stacklevel=4)
         for c, k in self.misfit.items():
             if k >= max(n, 1) / 10 and ("misfit", c) in self._evidence:
                 warnings.warn(f"{path}: sensor {c!r} misfit on {k} of {n} samples ({self._misfit_text(c)}) and was "
@@ -584,10 +649,12 @@ class Estimator:
         wide = slice(max(0, a - SPIKE_REACH), min(len(log), b + SPIKE_REACH))
         def take(names, r=wide):
             return log.require(names, [units.get(n, "") for n in names], absent, r)
-        U, S = take(db.names["u"]), take(pm.schedule_channels)
+        U, S, Y = take(db.names["u"]), take(pm.schedule_channels), take(db.names["y"])
         TD = take([pm.theta_channel, pm.delta_channel]) / [db.correction.T_std, db.correction.P_std] \
             if pm.theta_channel else np.ones((U.shape[0], 2))
         cols = np.hstack([U, S, TD])
+        self._hold_low_rate(log, [db.names["u"], pm.schedule_channels, [pm.theta_channel, pm.delta_channel]], cols)
+        self._hold_low_rate(log, [db.names["y"]], Y)
         lim = self._limits_of(0, 2, 3, 4)             # U, S, TH, DE
         with np.errstate(over="ignore"):
             span = lim[1] - lim[0]                    # inf for a channel without a range
@@ -597,9 +664,20 @@ class Estimator:
         U, S = np.ascontiguousarray(cols[:, :U.shape[1]]), np.ascontiguousarray(cols[:, U.shape[1]:-2])
         TH, DE = (np.ascontiguousarray(cols[:, -2]), np.ascontiguousarray(cols[:, -1])) \
             if pm.theta_channel else (None, None)
-        Y = take(db.names["y"], rows)
+        Y = Y[a - wide.start: b - wide.start]
         Y[:, [db.names["y"].index(c) for c in self.failed]] = np.nan      # failed for this log
         return U, Y, S, TH, DE
+
+    def _hold_low_rate(self, log: Log, groups, a) -> None:
+        """:func:`hold_low_rate` on ``a`` (columns: the channels of ``groups`` in turn, None for
+        none); the channels held are recorded in :attr:`low_rate` (name -> median step, s)."""
+        names = [c for g in groups for c in g]
+        dt = sample_interval(log.time)
+        if not np.isfinite(dt) or dt <= 0:
+            return
+        for j, med in hold_low_rate(a, int(LOW_RATE_GAP / dt)).items():
+            if names[j] is not None:
+                self.low_rate[names[j]] = max(self.low_rate.get(names[j], 0.0), round(med * dt, 6))
 
     def run(self, log, reset: bool = True) -> Result:
         """Estimates for a whole log.
@@ -789,7 +867,8 @@ class Estimator:
                "missing_channels": json.dumps({c: n for c, n in self.missing.items() if n}),
                "misfit_channels": json.dumps({c: n for c, n in self.misfit.items() if n}),
                "absent_channels": json.dumps(self.absent_sensors(log)),
-               "failed_channels": json.dumps(self.failed)}
+               "failed_channels": json.dumps(self.failed),
+               "low_rate_channels": json.dumps(self.low_rate)}
         if "resampled_from" in log.attrs:
             rec["resampled_from_dt"] = float(log.attrs["resampled_from"])
             rec["time_gaps"], rec["longest_gap_s"] = log.attrs["time_gaps"], log.attrs["longest_gap_s"]
@@ -867,7 +946,7 @@ class Estimator:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)      # an all-NaN axis
                 env[1], env[2] = np.fmin(env[1], np.nanmin(pt, axis=0)), np.fmax(env[2], np.nanmax(pt, axis=0))
-        outside = (res.flags & (FLAG_TRIM_OUTSIDE | FLAG_DYN_OUTSIDE | FLAG_NOT_STARTED)) != 0
+        outside = (res.flags & (FLAG_TRIM_OUTSIDE | FLAG_DYN_OUTSIDE | FLAG_NOT_STARTED | FLAG_AIR_DATA)) != 0
         outs = {o: res.outputs[o] for o in SNAPSHOT_OUTPUTS}
         # no snapshot value of what was not estimated there: health held, or any estimate while
         # the filter settles (the window's logged channels count: the diagnosis reads those)

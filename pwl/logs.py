@@ -74,10 +74,11 @@ class Log:
 
     @property
     def dt(self) -> float:
-        """The sample interval (s): the ``dt`` attribute, else the median time step."""
-        if "dt" in self.attrs:
-            return float(self.attrs["dt"])
-        return sample_interval(self.time)
+        """The sample interval (s): the median time step; the ``dt`` attribute for a log of one
+        sample (an attribute that the time column contradicts -- a converter's default -- is not
+        believed: dt 1.0 on a 15 ms log made 1 s snapshot blocks of 67 s)."""
+        dt = sample_interval(self.time)
+        return float(self.attrs["dt"]) if not np.isfinite(dt) and "dt" in self.attrs else dt
 
     def require(self, names, units=None, absent_ok=(), rows=slice(None)) -> np.ndarray:
         """Stack channels ``names`` into a C-contiguous (n, k) array, in ``units`` if given: a

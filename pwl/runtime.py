@@ -72,6 +72,8 @@ FLAG_SETTLING = 2048      # within the filter's settling time of its first valid
                           # (Model.settle_n steps): the estimates are still converging from q0 and
                           # the trims (Estimator(settle=...): 3 time constants of the database's
                           # slowest error dynamics); counted, not trusted (pwl.results.trusted)
+FLAG_AIR_DATA = 4096      # pressure altitude, Mach and the inlet total pressure disagree (set after the
+                          # step loop by the estimator, pwl.airdata): one of them is wrong; not trusted
 NOISY_CHANGES = 0.9       # a noisy signal changes on at least this fraction of its samples
 
 

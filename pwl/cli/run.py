@@ -246,7 +246,8 @@ FLAG_LABELS = (("updated", "updated"), ("trusted", "trusted"), ("no_update", "wi
                ("held_input", "input held"), ("implausible", "implausible"), ("misfit", "misfit"),
                ("health_implausible", "implausible health"), ("health_held", "health held"), ("stuck", "stuck sensor"),
                ("trim_outside", "outside the trim grid"), ("dyn_outside", "outside the dynamics grid"),
-               ("not_started", "before the first valid sample"), ("settling", "settling"))
+               ("not_started", "before the first valid sample"), ("settling", "settling"),
+               ("air_data", "air data disagree"))
 
 
 def describe(counts: dict) -> str:
@@ -287,9 +288,11 @@ def too_few(counts: dict, min_updated: float) -> str:
                "first valid sample (its estimates still converging): the log is too short")
     elif good < min_updated * n:
         flagged = ", ".join(f"{label} {counts[k] / n:.0%}" for k, label in (
+            ("air_data", "altitude, Mach and inlet pressure disagree"), ("held_input", "input held"),
             ("misfit", "misfit"), ("health_implausible", "implausible health"),
             ("trim_outside", "outside the trim grid"), ("settling", "within the filter's settling time")) if counts.get(k))
-        why = f"{good} of {n} samples trusted{after} ({flagged}: a unit mistake, a failed sensor or the wrong database?)"
+        why = (f"{good} of {n} samples trusted{after} ({flagged}: a unit mistake, a wrong or failed channel or the "
+               "wrong database?)")
     else:
         why = (f"health held on {held} of {n} samples{after} (not estimated: a sensor the health estimates need was "
                "missing, stuck or misfitting)")

@@ -1,0 +1,163 @@
+"""Channels that are wrong without being implausible: pressure altitude, Mach and the inlet total
+pressure that disagree (pwl.airdata, FLAG_AIR_DATA), inputs held for want of a value (not
+trusted), channels logged at a lower rate than the log's rows (held between their samples), and a
+log's ``dt`` attribute that its time column contradicts."""
+import json
+
+import numpy as np
+import pytest
+
+from models.gaspath import P_STD, isa
+from pwl.airdata import air_data_channels, disagree, inlet_pressure, isa_pressure
+from pwl.cli import main
+from pwl.demo_data import demo_paths
+from pwl.errors import PwlWarning
+from pwl.estimator import Estimator, hold_low_rate
+from pwl.logs import Log, read_log, write_log
+from pwl.results import trusted
+from pwl.runtime import FLAG_AIR_DATA, FLAG_HELD_INPUT, FLAG_NO_UPDATE
+from pwl.snapshots import SteadyConfig
+
+DB, LOGS = demo_paths()
+_RUNS = {}
+
+
+def degraded():
+    return read_log(LOGS[1])
+
+
+def with_channels(log: Log, **chans) -> Log:
+    return Log(log.time, log.channels | chans, log.units, log.truth, log.truth_units, dict(log.attrs), log.path)
+
+
+def clean_run():
+    if "clean" not in _RUNS:
+        _RUNS["clean"] = Estimator(DB).run(degraded())
+    return _RUNS["clean"]
+
+
+def test_standard_atmosphere_and_ram_pressure_match_the_plant_model():
+    """pwl.airdata against the turbofan model's own ISA (models.gaspath.isa) and the isentropic
+    ram rise written out here; the demo flight's P2 is the plant's, recovery 0.995."""
+    for h in (-300.0, 0.0, 5000.0, 10999.0, 11000.0, 15000.0):
+        assert isa_pressure(h) == pytest.approx(isa(h, 0.0)[1], rel=1e-6)
+    assert P_STD == pytest.approx(101325.0)
+    assert inlet_pressure(10000.0, 0.8) == pytest.approx(isa(10000.0, 0.0)[1] * 1.128 ** 3.5, rel=1e-6)
+    log = degraded()
+    ratio = log.channels["P2"] / inlet_pressure(log.channels["alt"], log.channels["Mach"])
+    assert np.nanmax(np.abs(ratio - 0.995)) < 0.006
+    assert not disagree(log.channels["alt"], log.channels["Mach"], log.channels["P2"]).any()
+    assert disagree([10000.0, 10000.0], [0.0, 0.8], [inlet_pressure(10000.0, 0.8)] * 2).tolist() == [True, False]
+    assert disagree([np.nan], [0.8], [5e4]).tolist() == [False]
+
+
+def test_which_channels_are_air_data():
+    units = {"alt": "ft", "Mach": "-", "Nf": "rpm", "P2": "kPa"}
+    assert air_data_channels(["alt", "Mach", "Nf"], units, "P2") == (0, 1, pytest.approx(0.3048), 1000.0)
+    assert air_data_channels(["alt", "Nf"], units, "P2") is None            # no Mach
+    assert air_data_channels(["alt", "Mach"], units, None) is None          # no inlet pressure
+    assert air_data_channels(["alt", "Mach"], units | {"P2": "K"}, "P2") is None
+
+
+@pytest.mark.parametrize("case", ["Mach 0", "altitude 0", "Mach frozen in the climb"])
+def test_disagreeing_air_data_is_flagged_untrusted_and_named(case, tmp_path, capsys):
+    """A log whose Mach or altitude is wrong, but plausible, was trusted (Fn 88 % off with Mach 0):
+    the samples where altitude, Mach and P2 disagree by more than 8 % are flagged FLAG_AIR_DATA
+    -- exactly those, per pwl.airdata.disagree on the logged values -- not trusted and kept out of
+    the snapshots; pwl run names the channels and fails the log."""
+    log = degraded()
+    mach, alt = log.channels["Mach"].copy(), log.channels["alt"].copy()
+    if case == "Mach 0":
+        mach[:] = 0.0
+    elif case == "altitude 0":
+        alt[:] = 0.0
+    else:
+        k = slice(int(150 / 0.015), int(270 / 0.015))
+        mach[k] = mach[k.start]
+    bad = with_channels(log, Mach=mach, alt=alt)
+    with pytest.warns(PwlWarning, match=r"'alt', 'Mach' and 'P2' disagree on \d+ of 54001 samples"):
+        res = Estimator(DB).run(bad)
+    expect = disagree(alt, mach, log.channels["P2"]) & ((res.flags & FLAG_HELD_INPUT) == 0)
+    np.testing.assert_array_equal((res.flags & FLAG_AIR_DATA) != 0, expect)
+    assert expect.sum() > (2000 if "frozen" in case else 30000)
+    assert not trusted(res.flags)[expect].any()
+    assert res.counts()["air_data"] == expect.sum()
+    assert (clean_run().flags & FLAG_AIR_DATA == 0).all()
+    # no snapshot where they disagree (as outside the grid: at most max_outside of a window's samples)
+    for t0, t1 in zip(res.snapshots.t0, res.snapshots.t1):
+        inside = (res.time >= t0) & (res.time <= t1)
+        assert expect[inside].mean() <= SteadyConfig().max_outside
+    if case != "Mach frozen in the climb":
+        write_log(tmp_path / "bad.h5", bad)
+        assert main(["run", DB, str(tmp_path / "bad.h5"), "-o", str(tmp_path / "out"), "-j", "1"]) == 1
+        out = capsys.readouterr()
+        assert "TOO FEW ESTIMATES" in out.out + out.err
+        assert "altitude, Mach and inlet pressure disagree" in out.out + out.err
+
+
+def test_held_inputs_are_not_trusted():
+    flags = np.array([0, FLAG_HELD_INPUT, FLAG_AIR_DATA, FLAG_NO_UPDATE, 0])
+    np.testing.assert_array_equal(trusted(flags), [True, False, False, False, True])
+
+
+def test_hold_low_rate_fills_between_samples_only_for_channels_logged_at_a_lower_rate():
+    """Against a forward fill written out here; random dropouts (a steady channel with 45 % of its
+    rows missing at random) and long gaps are left as they are."""
+    rng = np.random.default_rng(3)
+    n = 400
+    a = rng.normal(size=(n, 3))
+    a[np.arange(n) % 4 != 1, 0] = np.nan            # every 4th row
+    a[rng.random(n) < 0.45, 1] = np.nan              # dropouts at random
+    a[np.arange(n) % 3 != 0, 2] = np.nan             # every 3rd row, with a 40-row gap
+    a[200:240, 2] = np.nan
+    ref = a.copy()
+    held = hold_low_rate(a, max_rows=20)
+    assert held == {0: 4, 2: 3}
+    np.testing.assert_array_equal(a[:, 1], ref[:, 1])
+    for j, med in held.items():
+        last = np.nan
+        since = n
+        for i in range(n):
+            if np.isfinite(ref[i, j]):
+                last, since = ref[i, j], 0
+                assert a[i, j] == ref[i, j]
+            else:
+                since += 1
+                if since <= 2 * med:
+                    assert a[i, j] == last
+                else:
+                    assert np.isnan(a[i, j])
+    assert np.isnan(a[205:240, 2]).all()
+    assert hold_low_rate(ref.copy(), max_rows=3) == {2: 3}    # a 4-row step is more than max_rows
+
+
+def test_a_log_with_channels_at_lower_rates_reads_like_the_complete_log(tmp_path):
+    """Air data every 4th row and the six gas-path sensors every 4th row in turn (a merged
+    multi-rate export): snapshots as the complete log's (there were none: the operating point
+    was empty on 3 rows in 4) and their health within 0.3 pt of its; the channels held are named in the
+    provenance."""
+    log = degraded()
+    n = len(log)
+    rows = np.arange(n)
+    chans = {}
+    for c in ("alt", "Mach", "P2", "T2"):
+        chans[c] = np.where(rows % 4 == 0, log.channels[c], np.nan)
+    for j, c in enumerate(("T24", "T30", "T48", "Ps30", "P50", "P15")):
+        chans[c] = np.where(rows % 4 == j % 4, log.channels[c], np.nan)
+    res = Estimator(DB).run(with_channels(log, **chans))
+    ref = clean_run()
+    assert len(res.snapshots) == len(ref.snapshots) > 0
+    h, h0 = res.snapshots.outputs["h_hat"], ref.snapshots.outputs["h_hat"]
+    assert np.abs(h - h0).max() < 3e-3          # 0.19 pt measured
+    assert res.counts()["trusted"] >= 0.99 * ref.counts()["trusted"]
+    held = json.loads(res.attrs["provenance"]["low_rate_channels"])
+    assert sorted(held) == sorted(chans) and all(v == pytest.approx(0.06) for v in held.values())
+    assert json.loads(ref.attrs["provenance"]["low_rate_channels"]) == {}
+
+
+def test_a_dt_attribute_the_time_column_contradicts_is_not_believed():
+    log = degraded()
+    log.attrs["dt"] = 1.0
+    assert log.dt == pytest.approx(0.015)
+    one = Log(log.time[:1], {c: v[:1] for c, v in log.channels.items()}, log.units, attrs={"dt": 0.015})
+    assert one.dt == 0.015
