@@ -2,14 +2,23 @@
 
 Inputs are two CSV files, so any diagnostic method can be scored:
 
-- the diagnosis, one row per engine and flight: ``engine``, ``flight`` (flight number in the
-  numbering of the truth's ``onset``: the logs' ``flight_index``, else the 0-based position in
-  time order), ``detected`` (0/1), ``class`` (the assigned class; ignored when not detected); optional
+- the diagnosis, one row per engine and flight: ``engine``, ``flight`` (an integer, the flight
+  number in the numbering of the truth's ``onset``: the logs' ``flight_index``, else the 0-based
+  position in time order), ``detected`` (1/0, true/false or yes/no, any case), ``class`` (the
+  assigned class; ignored when not detected); optional
   ``kind`` (step, drift, wear, level, stuck, intermittent; cleared and recovery are not detected), ``magnitude`` (efficiency change for components, relative bias for the
   fuel-flow measurement) and ``bias`` (sensor units, for sensor faults);
 - the truth, one row per engine: ``engine``, ``class`` (``none`` for a healthy engine), ``onset``
   (first faulty flight, -1 for none), ``magnitude``, ``unit`` (``fraction`` or ``sigma``), ``bias``
   (sensor units, for sensor faults).
+
+Every engine of the truth is scored on every flight number the diagnosis has (the fleet's flights):
+an engine or an engine-flight the diagnosis leaves out counts as not detected, as a method that
+says nothing has detected nothing, and the result's ``notes`` name them. A row repeating an earlier
+one of the same engine and flight is counted once (and noted) when identical, else refused; an
+engine the truth does not know, a flight or onset that is not an integer and a ``detected`` that is
+not a boolean are refused (:class:`ScoreError`, naming the file, line, column and value), since any
+guess would change the rates without a word.
 
 Metrics (Simon 2010, NASA/TM-2010-215840): engine-flights with a fault present (faulty engine,
 flight >= onset) and without (healthy engines, and faulty engines before onset).
@@ -39,18 +48,133 @@ class ScoreError(PwlError, ValueError):
 
 
 def _read(path, need):
+    """The rows of CSV file ``path`` as (line number, row dict), checked for the columns ``need``."""
     path = os.fspath(path)
     try:
         with open(path, newline="") as fh:
-            rows = list(csv.DictReader(fh))
+            reader = csv.DictReader(fh)
+            rows = [(reader.line_num, r) for r in reader]
     except OSError as e:
         raise ScoreError(f"{path}: cannot read ({e})") from None
     if not rows:
         raise ScoreError(f"{path}: no rows")
-    missing = [c for c in need if c not in rows[0]]
+    missing = [c for c in need if c not in rows[0][1]]
     if missing:
-        raise ScoreError(f"{path}: missing column(s) {missing}; has {list(rows[0])}")
+        raise ScoreError(f"{path}: missing column(s) {missing}; has {list(rows[0][1])}")
     return rows
+
+
+_TRUE = ("1", "1.0", "true", "t", "yes", "y")
+_FALSE = ("0", "0.0", "false", "f", "no", "n")
+
+
+def _flag(path, line, col, v) -> bool:
+    """A boolean cell: 1/0, true/false, yes/no in any case; anything else is refused (read as 0 it
+    would score every detection as a miss)."""
+    s = (v or "").strip().lower()
+    if s in _TRUE or s in _FALSE:
+        return s in _TRUE
+    raise ScoreError(f"{path}: line {line}: column '{col}' is {v!r}; expected 1/0, true/false or yes/no")
+
+
+def _int(path, line, col, v) -> int:
+    """An integer cell (a flight number, an onset; ``3.0`` reads as 3); anything else is refused
+    (``flight_003`` read as -1 would put every flight before the fault's onset)."""
+    x = _num(v)
+    if not (np.isfinite(x) and x == int(x)):
+        raise ScoreError(f"{path}: line {line}: column '{col}' is {v!r}; expected an integer flight "
+                         "number (the numbering of the truth's onset)")
+    return int(x)
+
+
+def _few(names, n=5) -> str:
+    """The first ``n`` of ``names``, comma-separated, with '...' when there are more."""
+    names = list(names)
+    return ", ".join(names[:n]) + (", ..." if len(names) > n else "")
+
+
+def _flights(ks) -> str:
+    """Flight numbers as text: 'flight 7', 'flights 5-9' when consecutive, else the first few."""
+    if len(ks) == 1:
+        return f"flight {ks[0]}"
+    run = ks == list(range(ks[0], ks[-1] + 1))
+    return f"flights {ks[0]}-{ks[-1]}" if run else "flights " + _few(map(str, ks), 3)
+
+
+def _read_truth(path) -> dict:
+    """Engine -> its truth row, ``onset`` read as an integer (empty for a healthy engine: -1); an
+    engine given twice is refused unless both rows are identical."""
+    truth, first = {}, {}                   # engine -> truth row; engine -> (line, row as read)
+    for line, r in _read(path, ("engine", "class", "onset")):
+        eng = r["engine"]
+        if eng in first:
+            if r != first[eng][1]:
+                raise ScoreError(f"{path}: line {line}: engine {eng} is already on line {first[eng][0]} "
+                                 "with a different truth")
+            continue
+        empty = r["class"] == "none" and not (r["onset"] or "").strip()
+        first[eng] = line, r
+        truth[eng] = dict(r, onset=-1 if empty else _int(path, line, "onset", r["onset"]))
+    return truth
+
+
+def _read_diagnosis(path, truth, truth_path):
+    """Engine -> [(flight, detected, row)] in flight order for every engine of ``truth``
+    (:func:`_complete`), and what the reading found: ``missing_engines``,
+    ``missing_engine_flights``, ``repeated_rows`` and the ``notes`` that name them.
+
+    One row per engine and flight: an identical repeat is dropped (noted), a different one refused.
+    Engines not in the truth are refused: they cannot be scored, and dropping them would hide a
+    diagnosis of another fleet."""
+    rows = _read(path, ("engine", "flight", "detected", "class"))
+    unknown = sorted({r["engine"] for _, r in rows} - set(truth))
+    if unknown:
+        raise ScoreError(f"{path}: {len(unknown)} engine{'s are' if len(unknown) > 1 else ' is'} "
+                         f"not in {truth_path}: {_few(unknown)}")
+    seen, repeats = {}, []                  # (engine, flight) -> (line, detected, row)
+    for line, r in rows:
+        k = _int(path, line, "flight", r["flight"])
+        key = (r["engine"], k)
+        if key in seen:
+            if r != seen[key][2]:
+                raise ScoreError(f"{path}: line {line}: engine {key[0]} flight {k} is already on line "
+                                 f"{seen[key][0]} with different values (one row per engine and flight)")
+            repeats.append((line, key))
+            continue
+        seen[key] = (line, _flag(path, line, "detected", r["detected"]), r)
+    by_engine, found = _complete(seen, truth)
+    if repeats:
+        (line, (eng, k)), n = repeats[0], len(repeats)
+        note = (f"{n} row{'s repeat' if n > 1 else ' repeats'} an earlier row of the same engine and "
+                f"flight, counted once (first: engine {eng} flight {k}, line {line})")
+        found["notes"].insert(0, note)
+    return by_engine, dict(found, repeated_rows=len(repeats))
+
+
+def _complete(seen, truth):
+    """Every engine of ``truth`` on every flight number of the diagnosis (``seen``: (engine,
+    flight) -> (line, detected, row)); an engine-flight not in it is added as not detected (row
+    None), as a method that says nothing has detected nothing, and the notes name them."""
+    flights = sorted({k for _, k in seen})
+    by_engine, absent, partial = {}, [], []
+    for eng in truth:
+        lacking = [k for k in flights if (eng, k) not in seen]
+        if len(lacking) == len(flights):
+            absent.append(eng)
+        elif lacking:
+            partial.append(f"{eng} ({len(lacking)}: {_flights(lacking)})")
+        by_engine[eng] = [(k, *seen[eng, k][1:]) if (eng, k) in seen else (k, False, None)
+                          for k in flights]
+    notes = []
+    if absent:
+        notes.append(f"{len(absent)} engine{'s' if len(absent) > 1 else ''} of the truth not in the "
+                     f"diagnosis, their {len(absent) * len(flights)} engine-flights counted as not "
+                     f"detected: {_few(absent)}")
+    if partial:
+        notes.append(f"{len(partial)} engine{'s lack' if len(partial) > 1 else ' lacks'} flights other "
+                     f"engines have, counted as not detected: {_few(partial)}")
+    missing = sum(row is None for fl in by_engine.values() for *_, row in fl)
+    return by_engine, {"missing_engines": absent, "missing_engine_flights": missing, "notes": notes}
 
 
 def _num(v, default=float("nan")):
@@ -92,26 +216,17 @@ def score(diagnosis_csv, truth_csv, min_component: float = 0.0, min_sensor_sigma
 
     ``min_component`` (|efficiency change|) and ``min_sensor_sigma`` (bias in noise sigmas) set the
     detectability magnitude: ``tpr_detectable`` counts only faults at or above it."""
-    diag = _read(diagnosis_csv, ("engine", "flight", "detected", "class"))
-    truth = {r["engine"]: r for r in _read(truth_csv, ("engine", "class", "onset"))}
-    unknown = sorted({r["engine"] for r in diag} - set(truth))
-    if unknown:
-        raise ScoreError(f"{diagnosis_csv}: engines {unknown[:5]} are not in {truth_csv}")
-    by_engine: dict[str, list[dict]] = {}
-    for r in diag:
-        by_engine.setdefault(r["engine"], []).append(r)
+    truth = _read_truth(truth_csv)
+    by_engine, coverage = _read_diagnosis(diagnosis_csv, truth, truth_csv)
     pairs = []            # (true class of the flight, assigned class, engine, flight)
     latency, undetected, sizing = {}, [], {}
     tp = fn = fp = tn = tp_det = n_det = 0
     for eng, rows in by_engine.items():
-        rows.sort(key=lambda r: int(_num(r["flight"], -1)))
         t = truth[eng]
-        cls, onset = t["class"], int(_num(t["onset"], -1))
+        cls, onset = t["class"], t["onset"]
         detectable = cls != "none" and _detectable(t, min_component, min_sensor_sigma)
         first = None
-        for r in rows:
-            k = int(_num(r["flight"], -1))
-            det = int(_num(r["detected"], 0)) == 1
+        for k, det, r in rows:
             assigned = r["class"] if det else "none"
             faulty = cls != "none" and onset >= 0 and k >= onset
             pairs.append((cls if faulty else "none", assigned, eng, k))
@@ -128,8 +243,8 @@ def score(diagnosis_csv, truth_csv, min_component: float = 0.0, min_sensor_sigma
                 undetected.append(eng)
             else:
                 latency[eng] = first - onset
-            last = rows[-1]
-            if int(_num(last["detected"], 0)) == 1 and last["class"] == cls:
+            _, det, last = rows[-1]
+            if det and last["class"] == cls:
                 sizing[eng] = _size_error(t, last)
     labels = sorted({p[0] for p in pairs} | {p[1] for p in pairs}, key=lambda c: (c != "none", c))
     li = {c: i for i, c in enumerate(labels)}
@@ -155,6 +270,7 @@ def score(diagnosis_csv, truth_csv, min_component: float = 0.0, min_sensor_sigma
         "sizing_error_median": _median(list(sizing.values())),
         "per_class": _per_class(pairs, truth, set(by_engine), latency, sizing),
         "confusion": {"labels": labels, "counts": cm.tolist()},
+        **coverage,
     }
 
 
@@ -199,6 +315,7 @@ def table(res: dict) -> str:
     """The headline figures and the per-class table as text."""
     lines = [f"{res['engines']} engines, {res['engine_flights']} engine-flights "
              f"({res['fault_flights']} with a fault present, {res['no_fault_flights']} without)",
+             *(f"note: {n}" for n in res.get("notes", ())),
              f"true-positive rate        {100 * res['tpr']:6.1f} %   (detectable faults: "
              f"{100 * res['tpr_detectable']:.1f} % of {res['detectable_flights']})",
              f"false-positive rate       {100 * res['fpr']:6.2f} %",
