@@ -17,7 +17,7 @@ from .grid import Axis, Grid
 from .h5io import atomic_h5
 from .logs import (Log, LogError, check_time, read_header, read_log, read_rows, resample, rows_missing, sample_interval,
                    time_gaps)
-from .runtime import (FLAG_AIR_DATA, FLAG_DYN_OUTSIDE, FLAG_HEALTH_HELD, FLAG_HELD_INPUT, FLAG_IMPLAUSIBLE, FLAG_NO_UPDATE, FLAG_NOT_STARTED,
+from .runtime import (NEVER, FLAG_AIR_DATA, FLAG_DYN_OUTSIDE, FLAG_HEALTH_HELD, FLAG_HELD_INPUT, FLAG_IMPLAUSIBLE, FLAG_NO_UPDATE, FLAG_NOT_STARTED,
                       FLAG_SETTLING, FLAG_STUCK, FLAG_TRIM_OUTSIDE, HEALTH_HOLD_RATIO, MISFIT_SIGMAS, STUCK_AFTER,
                       STUCK_SIGMAS, Bias, Filter, Inputs, Outputs, PackedModel, blank_implausible, filter_loop, report, screen, spike_mask, burst_mask, state_layout)
 from .results import LOG_ATTRS, Result, append_rows, init_result_file
@@ -75,6 +75,21 @@ def hold_low_rate(a: np.ndarray, max_rows: int) -> dict[int, int]:
         a[fill, j] = a[last[fill], j]
         held[j] = med
     return held
+
+
+def _longest_runs(hit: np.ndarray, runs: np.ndarray) -> None:
+    """Update ``runs`` (2, k): [longest run of True in each column of ``hit`` (n, k) so far, the
+    run going on at its end], continuing the runs of the rows before ``hit``'s."""
+    for j in range(hit.shape[1]):
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], hit[:, j].astype(np.int8), [0]])))
+        if not edges.size:
+            runs[1, j] = 0.0
+            continue
+        lens = (edges[1::2] - edges[::2]).astype(np.float64)
+        if edges[0] == 0:
+            lens[0] += runs[1, j]
+        runs[0, j] = max(runs[0, j], lens.max())
+        runs[1, j] = lens[-1] if edges[-1] == hit.shape[0] else 0.0
 
 
 def spikes(a: np.ndarray, span: np.ndarray, width: int = SPIKE_WIDTH, fraction: float = SPIKE_FRACTION,
@@ -223,8 +238,11 @@ class Estimator:
                         "stuck": (stuck_after, STUCK_AFTER), "settle": (self.settle, default_settle)}   # (value, default)
         sd = self._sensor_sd()
         stuck_n = min(np.ceil(stuck_after / self.db.dt), 2.0 ** 62)
+        # a log whose sensors misfit longer than the filter settles is run again with them used
+        # after so long (_second_opinions, pwl.runtime.FLAG_MISFIT)
+        self._readmit_n = max(1, int(np.ceil(default_settle / self.db.dt)))
         self._model = self.pm.record(self.db.tuner["V_pinv"], np.stack([misfit_sigmas * sd, STUCK_SIGMAS * sd, sd]),
-                                     int(stuck_n), int(np.ceil(self.settle / self.db.dt)))
+                                     int(stuck_n), int(np.ceil(self.settle / self.db.dt)), NEVER)
         self._grids = self.pm.grids(self.db)
         hr = db.attrs.get("health_ranges") or {}
         self._h_range = tuple(np.array([hr.get(h, (-np.inf, np.inf))[i] for h in db.names["h"]],
@@ -348,8 +366,8 @@ class Estimator:
         self.state[:] = np.nan
         self.state[nx:nx + nq] = self.q0 if q0 is None else np.asarray(q0, dtype=np.float64)
         self._h_held[:] = self.db.tuner["h_ref"] + self.db.tuner["V_pinv"] @ self.state[nx:nx + nq]
-        self.state[oyl + ny:ost + 1] = 0.0     # the stuck detector's counts, not started
-        self.state[ost - ny:ost] = np.inf      # its smallest change of each sensor: none yet
+        self.state[oyl + ny:ost + 1] = 0.0     # the sensor record's counts, not started
+        self.state[oyl + 6 * ny:oyl + 7 * ny] = np.inf      # its smallest change of each sensor: none yet
         self.t_idx[:] = 0
         self.d_idx[:] = 0
         self._b_idx[:] = 0
@@ -360,6 +378,7 @@ class Estimator:
         self.low_rate = {}       # channel logged at a lower rate -> its step, s (_hold_low_rate)
         self.air_data = 0        # samples whose scheduling and inlet pressure disagree (_check_air_data)
         self._fit_rows, self._misfit_in = 0, {}   # samples where the model should fit, misfits there
+        self._misfit_runs = np.zeros((2, len(self.db.names["y"])))   # longest misfit run, the run going on
         na = len(self.db.trim_grid.axes)   # samples outside the trim grid; each axis's extremes (_accumulate)
         self._envelope = [0, np.full(na, np.inf), np.full(na, -np.inf)]
 
@@ -554,6 +573,7 @@ class Estimator:
         fit = (res.flags & (FLAG_TRIM_OUTSIDE | FLAG_DYN_OUTSIDE | FLAG_NOT_STARTED | FLAG_IMPLAUSIBLE | FLAG_STUCK
                             | FLAG_NO_UPDATE | FLAG_AIR_DATA)) == 0
         self._fit_rows += int(fit.sum())
+        _longest_runs(hit, self._misfit_runs)
         for i, (c, k) in enumerate(zip(self.db.names["y"], hit.sum(axis=0))):
             self.misfit[c] += int(k)
             self._misfit_in[c] = self._misfit_in.get(c, 0) + int(np.count_nonzero(hit[fit, i]))
@@ -712,21 +732,48 @@ class Estimator:
             log = read_log(log, channel_map=self.channel_map)
         self._warn_absent(log)
         if reset:
-            res = self._without_failed(log.path, lambda: self._run_log(log, True))
+            res = self._second_opinions(log.path, lambda: self._run_log(log, True))
         else:
             res = self._run_log(log, False)
         self._warn_channels(log.path, len(res.time))
         return res
 
-    def _without_failed(self, path, once):
-        """``once()`` (a run from a reset), and again, from a reset, without the sensors that
-        failed for the log (:meth:`_failed_sensors`) when there are any; its result."""
+    #: a run again with sensors used after misfitting for the filter's settling time is kept when it
+    #: misfits on at most this share of the first run's misfitting samples (P2 frozen for a minute
+    #: of the climb: Ps30, P50 and P15 misfit and left out on 47 % of the flight, health 10-20
+    #: points off for 6 minutes, then 3 % and 1.5 minutes; P50 and P15 swapped: 70 % then 72 %)
+    READMIT_SHARE = 0.5
+
+    def _second_opinions(self, path, once):
+        """``once()`` (a run from a reset) and again when it may be wrong; the result kept.
+
+        A sensor left out for misfitting longer than the filter settles may have been locked out
+        by a state that something else pushed the filter to (a frozen input): left out, it cannot
+        pull the filter back, and with the health held without it nothing else does. The log is
+        run again with misfitting sensors used after ``readmit_n`` steps in a row
+        (:class:`pwl.runtime.Model`), kept if it misfits far less (:attr:`READMIT_SHARE`); a
+        failed sensor misfits as much used or not, and its first run is kept. Then the log runs
+        again without the sensors that failed for it (:meth:`_failed_sensors`), if any."""
         self.failed = []
+        self._readmit(False)
         out = once()
+        if self._misfit_runs[0].max() > self._readmit_n:
+            first = sum(self._misfit_in.values())
+            self._readmit(True)
+            self.reset()
+            out = once()
+            if sum(self._misfit_in.values()) > self.READMIT_SHARE * first:
+                self._readmit(False)
+                self.reset()
+                out = once()
         if self._failed_sensors(path):
             self.reset()
             out = once()
         return out
+
+    def _readmit(self, on: bool) -> None:
+        """Use sensors again after misfitting for the filter's settling time (on), or never."""
+        self._model = self._model._replace(readmit_n=self._readmit_n if on else NEVER)
 
     def _run_log(self, log: Log, reset: bool) -> Result:
         """:meth:`run` once (the sensors of :attr:`failed` left out), without the channel warnings."""
@@ -1071,7 +1118,7 @@ class Estimator:
         else:
             self._warn_absent(head)
             args = (log_path, out_path, head, part, chunk, keep, every, self.provenance | record, units, compression)
-            totals, snaps = self._without_failed(log_path, lambda: self._write_chunks(*args))
+            totals, snaps = self._second_opinions(log_path, lambda: self._write_chunks(*args))
             self._warn_channels(log_path, len(head))
         return totals.counts | {"snapshots": len(snaps), "missing_channels": dict(self.missing), "misfit_channels":
                                 dict(self.misfit), "failed_channels": list(self.failed),

@@ -98,8 +98,11 @@ class Log:
                     continue
                 if name in self.attrs.get("text_columns", {}):
                     raise LogError(self.attrs["text_columns"][name])
+                like = [c for c in self.channels if c.casefold() == name.casefold()]
+                hint = (f"; {like[0]!r} differs in case only: rename the column, or map it with a channel map"
+                        if like else "")
                 raise LogError(f"{self.path}: channel {name!r} is missing "
-                               f"(log has: {', '.join(sorted(self.channels))})")
+                               f"(log has: {', '.join(sorted(self.channels))}){hint}")
             out[:, j] = self.channels[name][rows]
             if units is not None:
                 try:
@@ -382,10 +385,15 @@ def check_time(path, time) -> None:
     bad = np.flatnonzero(~np.isfinite(time))
     if bad.size:
         raise LogError(f"{path}: time is not finite at sample {bad[0]} ({time[bad[0]]})")
-    back = np.flatnonzero(np.diff(time) <= 0)
+    step = np.diff(time)
+    back = np.flatnonzero(step <= 0)
     if back.size:
         k = back[0] + 1
-        raise LogError(f"{path}: time does not increase at sample {k} ({float(time[k - 1])!r} -> {float(time[k])!r})")
+        same = int(np.count_nonzero(step == 0))
+        hint = (f"; it repeats on {same} of {step.size} rows: time stamps coarser than the sampling? Export "
+                "the time with sub-second resolution" if same > 0.1 * step.size else "")
+        raise LogError(f"{path}: time does not increase at sample {k} ({float(time[k - 1])!r} -> "
+                       f"{float(time[k])!r}){hint}")
 
 
 def read_rows(head: Log, a: int, b: int) -> Log:

@@ -47,7 +47,10 @@ FLAG_MISFIT = 64          # a sensed output differed from its prediction by more
                           # explain the sample (stuck or failed sensor, spike, unit mistake). While
                           # the misfitting sensors are fewer than half the present ones they are
                           # left out of the update like missing ones (FLAG_PARTIAL path); when
-                          # most misfit, the model as a whole is off and all are used
+                          # most misfit, the model as a whole is off and all are used; a sensor
+                          # that has misfit for Model.readmit_n steps in a row is used again (the
+                          # filter's state, not the sensor, is then the likelier cause: left out,
+                          # it could never come back)
 MISFIT_SIGMAS = 12.0
 FLAG_HEALTH = 128         # a health estimate left the plant's plausible health range (e.g. an
                           # efficiency 10 % better than new): the estimates cannot be trusted
@@ -67,7 +70,10 @@ FLAG_STUCK = 1024         # a sensor's value has not changed for STUCK_AFTER sec
                           # until its value changes
 STUCK_SIGMAS = 4.0
 STUCK_AFTER = 2.0
-STUCK_ROWS = 7            # the stuck detector's record per sensor in the filter state (_stuck)
+STUCK_ROWS = 8            # the sensor record per sensor in the filter state: the stuck detector's 7
+                          # rows (_stuck), then the steps it has misfit in a row (_predict_measurements)
+MISFIT_ROW = 7
+NEVER = 2 ** 62           # a step count never reached (Model.readmit_n: misfitting sensors stay out)
 FLAG_SETTLING = 2048      # within the filter's settling time of its first valid sample
                           # (Model.settle_n steps): the estimates are still converging from q0 and
                           # the trims (Estimator(settle=...): 3 time constants of the database's
@@ -147,6 +153,7 @@ class Model(NamedTuple):
                            # fractions of the prediction
     stuck_n: int           # samples a sensor's value must repeat before the stuck gate applies
     settle_n: int          # steps from the first valid sample flagged FLAG_SETTLING
+    readmit_n: int         # steps a sensor may misfit in a row and stay out of the update
     ko_tab: np.ndarray     # (dyn nodes * ny, ny * na) sensor-out gains, or (1, 0)
     ko_avail: np.ndarray   # int64 (dyn nodes * ny,) 0 none, 1 gain, 2 gain and health held
     sub_tab: np.ndarray    # (dyn nodes, na*na + ny*ny) steady a-priori P and R, row-major: the
@@ -277,7 +284,7 @@ def block_layout(nx, nu, ny, nz, nq):
 @njit(cache=True, nogil=True)
 def state_layout(nx, nq, nu, ns, ny):
     """Offsets in the filter state vector [x_abs (nx), q (nq), u_last (nu), s_last (ns),
-    theta_last, delta_last, the stuck detector's sensor record (7 x ny, :func:`_stuck`), steps since
+    theta_last, delta_last, the sensor record (STUCK_ROWS x ny: :func:`_stuck`, MISFIT_ROW), steps since
     the first valid sample (0: not started)]
     and its size: (ox, oq, ou, osl, oth, ode, oyl, ost, size)."""
     ou = nx + nq
@@ -490,8 +497,9 @@ def _predict_measurements(io, model, bias, state, out, w, k, oC, oD, ny, ty, cy,
     """y_hat = y_trim + C_a xm + D du (+ the bias tables), residuals (corrected units into w.res,
     physical into the outputs; NaN for a missing sensor), the stuck detector and the misfit gate:
     w.use[i] is False for a missing or stuck sensor and, while they are fewer than half the
-    present ones, for a misfitting one (its residual is still reported). Returns (flags, number
-    of sensors left out, the last one left out)."""
+    present ones, for a misfitting one (its residual is still reported) that has not misfit for
+    more than model.readmit_n steps in a row (counted in the sensor record's MISFIT_ROW). Returns
+    (flags, number of sensors left out, the last one left out)."""
     flags = 0
     for i in range(ny):
         w.yh[i] = w.tw[_u(ty + i)]
@@ -500,7 +508,8 @@ def _predict_measurements(io, model, bias, state, out, w, k, oC, oD, ny, ty, cy,
     for c in range(bias.vals.shape[0]):
         w.yh[bias.chan[c]] += w.bias[c]
     n_miss = 0
-    n_mis = 0
+    n_mis = 0        # misfitting sensors
+    n_new = 0        # of which misfitting for at most readmit_n steps in a row
     n_present = 0
     n_changed = 0
     for i in range(ny):
@@ -526,16 +535,21 @@ def _predict_measurements(io, model, bias, state, out, w, k, oC, oD, ny, ty, cy,
             w.res[i] = 0.0
             n_miss += 1
             continue
+        run = _u(oyl + i) + _u(MISFIT_ROW) * _u(ny)
         if abs(r) > model.gate[0, i] * abs(s):
+            flags |= FLAG_MISFIT
+            state[run] += 1.0
             n_mis += 1
-    if n_mis > 0:
-        flags |= FLAG_MISFIT
-    exclude = n_mis > 0 and 2 * n_mis < ny - n_miss
-    n_out = n_miss + (n_mis if exclude else 0)
+            n_new += state[run] <= model.readmit_n
+        else:
+            state[run] = 0.0
+    exclude = n_new > 0 and 2 * n_mis < ny - n_miss
+    n_out = n_miss + (n_new if exclude else 0)
     miss = 0
     if n_out > 0:   # (the common step has every sensor: no second pass)
         for i in range(ny):
-            if w.use[i] and exclude and abs(out.residual[k, i]) > model.gate[0, i] * abs(out.y_hat[k, i]):
+            if (w.use[i] and exclude and abs(out.residual[k, i]) > model.gate[0, i] * abs(out.y_hat[k, i])
+                    and state[_u(oyl + i) + _u(MISFIT_ROW) * _u(ny)] <= model.readmit_n):
                 w.use[i] = False
                 w.res[i] = 0.0
             if not w.use[i]:
@@ -1138,10 +1152,10 @@ class PackedModel:
         nx, nu, ny, nz, nq, nh = (int(d) for d in self.dims)
         return int(state_layout(nx, nq, nu, len(self.schedule_channels), ny)[-1])
 
-    def record(self, V_pinv: np.ndarray, gate: np.ndarray, stuck_n: int, settle_n: int) -> Model:
+    def record(self, V_pinv: np.ndarray, gate: np.ndarray, stuck_n: int, settle_n: int, readmit_n: int) -> Model:
         """The kernel's :class:`Model` record: these tables, with V_pinv (nh, nq), the misfit gate,
         stuck gate and sensor noise (3, ny; :attr:`Model.gate`), the stuck detector's repeat
-        count and the settling steps (samples)."""
+        count, the settling steps and the misfit steps before a sensor is used again (samples)."""
         nx, nu, ny, nz, nq, nh = (int(d) for d in self.dims)
         lay = block_layout(nx, nu, ny, nz, nq)
         width = lay[-1] if self.online else lay[-2] - (nx + nq) * ny * (self.z_gains.shape[0] > 0)
@@ -1152,7 +1166,7 @@ class PackedModel:
                      self.s_state,
                      bool(self.online), self.p_tab, np.ascontiguousarray(V_pinv), self.z_gains,
                      self.z_labels, np.ascontiguousarray(gate, dtype=np.float64), int(stuck_n), int(settle_n),
-                     self.ko_tab, self.ko_avail,
+                     int(readmit_n), self.ko_tab, self.ko_avail,
                      self.sub_tab)
 
     def grids(self, db: GainDatabase) -> Grids:

@@ -62,7 +62,7 @@ def test_which_channels_are_air_data():
 @pytest.mark.parametrize("case", ["Mach 0", "altitude 0", "Mach frozen in the climb"])
 def test_disagreeing_air_data_is_flagged_untrusted_and_named(case, tmp_path, capsys):
     """A log whose Mach or altitude is wrong, but plausible, was trusted (Fn 88 % off with Mach 0):
-    the samples where altitude, Mach and P2 disagree by more than 8 % are flagged FLAG_AIR_DATA
+    the samples where altitude, Mach and P2 disagree by more than 5 % are flagged FLAG_AIR_DATA
     -- exactly those, per pwl.airdata.disagree on the logged values -- not trusted and kept out of
     the snapshots; pwl run names the channels and fails the log."""
     log = degraded()

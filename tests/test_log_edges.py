@@ -133,3 +133,15 @@ def test_a_sensor_that_fails_for_a_whole_log_is_left_out_of_it(tmp_path):
     assert counts["health_held"] == len(log.time)
     assert main(["run", DB, str(tmp_path / "swapped.h5"), "-o", str(tmp_path / "out"), "-j", "1"]) == 1
     assert json.loads(est.run(log).attrs["provenance"]["failed_channels"]) == []
+
+
+def test_messages_for_coarse_time_stamps_and_channel_names_in_another_case():
+    from pwl.logs import LogError, check_time
+    with pytest.raises(LogError, match=r"x.csv: time does not increase at sample 1 \(0.0 -> 0.0\); it repeats on 30 "
+                                       r"of 39 rows: time stamps coarser than the sampling\?"):
+        check_time("x.csv", np.repeat(np.arange(10.0), 4))          # 1 s stamps on a 0.25 s log
+    with pytest.raises(LogError, match=r"time does not increase at sample 2 \(1.0 -> 0.5\)$"):
+        check_time("x.csv", np.array([0.0, 1.0, 0.5, 2.0]))           # no hint for a time going back
+    log = Log(np.arange(3.0), {"wf": np.ones(3)}, {"wf": ""})
+    with pytest.raises(LogError, match=r"channel 'Wf' is missing \(log has: wf\); 'wf' differs in case only"):
+        log.require(["Wf"])

@@ -45,11 +45,12 @@ class ReferenceFilter:
     had averaged more than sd / 2 over at least as long before and it had changed on
     NOISY_CHANGES of those samples, is left out (stuck) until the value changes; then the sensors whose residual exceeds
     ``misfit_sigmas`` sd of the prediction are left out too, unless they are half the remaining
-    ones or more."""
+    ones or more (counting all that misfit), or have misfit on more than ``readmit`` samples in a row (its present, unstuck
+    samples; default: never)."""
 
     def __init__(self, db: GainDatabase, bias=None, online: bool = False, zones=None,
                  health_hold: float = 3.0, misfit_sigmas: float = 12.0, stuck_sigmas: float = 4.0,
-                 stuck_after: float = 2.0):
+                 stuck_after: float = 2.0, readmit: int | None = None):
         from scipy.interpolate import RegularGridInterpolator
 
         self.db = db
@@ -63,6 +64,7 @@ class ReferenceFilter:
             np.abs(db.trim["y"].reshape(-1, ny)), axis=0)
         self.misfit_gate, self.stuck_gate, self.sd = misfit_sigmas * sd, stuck_sigmas * sd, sd
         self.stuck_n = np.ceil(stuck_after / db.dt)
+        self.readmit = np.inf if readmit is None else readmit
         ext = db.policy == "extrapolate"
         self.ext = ext
 
@@ -120,6 +122,7 @@ class ReferenceFilter:
         ny = db.n("y")
         y_last, repeats, froze_at = np.full(ny, np.nan), np.zeros(ny), np.zeros(ny)
         change_sum, seen, changes, resolution = np.zeros(ny), np.zeros(ny), np.zeros(ny), np.full(ny, np.inf)
+        misfit_run = np.zeros(ny)
         for k in range(U.shape[0]):
             th, de = TH[k], DE[k]
             p = np.empty(len(db.schedule))
@@ -179,8 +182,9 @@ class ReferenceFilter:
             repeats[stuck] = np.inf       # stuck until the value changes
             have = present & ~stuck
             misfit = have & (np.abs(res) > self.misfit_gate * np.abs(pred))
+            misfit_run = np.where(misfit, misfit_run + 1, np.where(have, 0.0, misfit_run))
             if 2 * misfit.sum() < have.sum():
-                have &= ~misfit
+                have &= ~(misfit & (misfit_run <= self.readmit))
             r = np.where(have, r, 0.0)
             for i, w, vals, ratio, inside in learn:
                 if inside and have.all():
