@@ -206,3 +206,19 @@ def test_pwl_run_says_which_sensor_a_log_lacks_in_one_line(tmp_path, capsys):
     assert "pwl: warning: " + str(tmp_path / "nop15.h5") + ": no 'P15' channel: run without that sensor" in cap.err
     assert "4000 partial update" in cap.out + cap.err
     assert warnings.showwarning is shown
+
+
+def test_a_reader_that_closes_the_pipe_ends_the_command_quietly(tmp_path):
+    """pwl fleet score ... | head: the pipe closes while pwl still prints; exit 0 without an
+    'error: [Errno 32] Broken pipe' line (a subprocess whose stdout is a pipe closed at once)."""
+    import subprocess
+    import sys
+    code = ("import sys\nfrom pwl.cli import main\nimport pwl.cli.info as info\n"
+            "def loud(args):\n    for _ in range(100000):\n        print('x' * 80)\n"
+            "info.run = loud\nsys.exit(main(['info', 'x.h5']))\n")
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc.stdout.read(10)
+    proc.stdout.close()                      # the reader goes away
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=120) == 0, err
+    assert "Broken pipe" not in err and "Traceback" not in err

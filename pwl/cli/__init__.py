@@ -71,6 +71,9 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
+    except BrokenPipeError:      # the reader of stdout went away (pwl ... | head): not an error
+        _quiet_stdout()
+        return 0
     except (PwlError, OSError) as e:
         if args.debug:
             raise
@@ -87,6 +90,16 @@ def main(argv=None) -> int:
         warnings.showwarning = shown
         if term is not None:
             signal.signal(signal.SIGTERM, term)
+
+
+def _quiet_stdout() -> None:
+    """Point stdout at /dev/null, so that the interpreter's flush at exit does not fail again on
+    the closed pipe (Python's documented way, 'Note on SIGPIPE')."""
+    import os
+    try:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    except (OSError, ValueError):      # stdout is not a file (captured): nothing to quiet
+        pass
 
 
 def _interrupt(signum, frame):
