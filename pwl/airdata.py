@@ -19,12 +19,14 @@ import numpy as np
 
 from .units import UnitError, converter, known
 
-#: |ln(P2 / P2 expected)| above ln(1 + AIR_DATA_TOLERANCE) disagrees: 5 % is a Mach error of about
-#: 0.05 at Mach 0.8, an altitude error of about 330 m at 10 km (900 m at sea level). The demo
+#: |ln(P2 / P2 expected)| above ln(1 + AIR_DATA_TOLERANCE) disagrees: 6 % is a Mach error of about
+#: 0.06 at Mach 0.8, an altitude error of about 400 m at 10 km (1.1 km at sea level). The demo
 #: plant's inlet recovery is 0.995, and its flights (and the seed-7 fleet's) stay within 0.990-1.000
 #: of full recovery; a flight-test P2 sensor is good to 1 %. Mach frozen for 2 minutes of the
-#: demo climb drifts more than 5 % off on 87 % of that time (8 %: 45 %)
-AIR_DATA_TOLERANCE = 0.05
+#: demo climb drifts more than 6 % off on 83 % of that time (8 %: 45 %); a whole flight logged
+#: 300 m below its pressure altitude, harmless to the estimates (the correction reads P2), is off
+#: by at most 5.2 % (5 % flagged its cruise)
+AIR_DATA_TOLERANCE = 0.06
 
 _P_SL, _T_SL, _LAPSE, _G, _R = 101325.0, 288.15, 0.0065, 9.80665, 287.05287
 _H_TROP, _P_TROP, _T_TROP = 11000.0, 22632.06, 216.65

@@ -203,6 +203,7 @@ class Estimator:
             channel_map = ChannelMap.load(channel_map)
         self.channel_map = channel_map   # logs read from files go through it (pwl.channel_map)
         self.failed: list[str] = []      # sensors failed for the last log (_failed_sensors): left out
+        self._blind: list = []          # (first, last) times without measurement updates (_second_opinions)
         self.resample = resample
         zt = None
         if zones:
@@ -377,6 +378,8 @@ class Estimator:
         self._evidence = {}      # channel or ("misfit", sensor) -> kept values (_checked)
         self.low_rate = {}       # channel logged at a lower rate -> its step, s (_hold_low_rate)
         self.air_data = 0        # samples whose scheduling and inlet pressure disagree (_check_air_data)
+        self.frozen = {}         # input -> [samples frozen while the engine moved, the value] (_check_frozen_inputs)
+        self._frozen_spans = []  # their (first, last) times
         self._fit_rows, self._misfit_in = 0, {}   # samples where the model should fit, misfits there
         self._misfit_runs = np.zeros((2, len(self.db.names["y"])))   # longest misfit run, the run going on
         na = len(self.db.trim_grid.axes)   # samples outside the trim grid; each axis's extremes (_accumulate)
@@ -552,6 +555,7 @@ class Estimator:
         kept (:attr:`EVIDENCE` per chunk) for the warnings."""
         self._check_envelope(res.flags, res.time, path)
         self._check_air_data(res.flags, arrays)
+        self._check_frozen_inputs(res.flags, res.time, arrays[0], arrays[2])
         corr = self.db.correction
         std = [1.0, 1.0, 1.0, corr.T_std if corr else 1.0, corr.P_std if corr else 1.0]
         for cols, a, sc in zip(self._columns(), arrays, std):
@@ -571,7 +575,7 @@ class Estimator:
         # the grid, no implausible channel, no sensor already left out as stuck (a frozen sensor
         # misfits once its prediction moves)
         fit = (res.flags & (FLAG_TRIM_OUTSIDE | FLAG_DYN_OUTSIDE | FLAG_NOT_STARTED | FLAG_IMPLAUSIBLE | FLAG_STUCK
-                            | FLAG_NO_UPDATE | FLAG_AIR_DATA)) == 0
+                            | FLAG_NO_UPDATE | FLAG_AIR_DATA | FLAG_HELD_INPUT)) == 0
         self._fit_rows += int(fit.sum())
         _longest_runs(hit, self._misfit_runs)
         for i, (c, k) in enumerate(zip(self.db.names["y"], hit.sum(axis=0))):
@@ -598,6 +602,37 @@ class Estimator:
             alt = S[rows, ja] * ka
             self._evidence.setdefault("air_data", []).append(np.column_stack(
                 [np.log(p2[rows] / inlet_pressure(alt, S[rows, jm])), alt, S[rows, jm], p2[rows]]))
+
+    def _check_frozen_inputs(self, flags, t, U, S) -> None:
+        """Flag FLAG_HELD_INPUT on the runs where an input repeats one value exactly for the stuck
+        detector's time or longer while a scheduling channel moves more than SPIKE_FRACTION of its
+        plausible span (U (n, nu), S (n, ns) as from :meth:`_split`): a frozen word or a meter at
+        the end of its range, whose value is not the engine's. Fuel flow clipped at 2.0 kg/s
+        through the degraded demo flight's take-off read T40 up to 7.6 % low, frozen for a minute
+        of its descent 4.9 % RMS (two sensors blamed and dropped), both trusted; the clean demo and
+        seed-7 flights repeat their fuel flow only where altitude and Mach hold still (Nf moves
+        1.5 % of its span with its noise)."""
+        n = self._model.stuck_n
+        lim = self._limits_of(2)
+        with np.errstate(over="ignore", invalid="ignore"):
+            span = SPIKE_FRACTION * (lim[1] - lim[0])
+            S = np.where((S >= lim[0]) & (S <= lim[1]), S, np.nan)      # held (spikes, implausible): no move
+        for j, c in enumerate(self.db.names["u"]):
+            x = U[:, j]
+            same = np.concatenate([[False], x[1:] == x[:-1]])
+            edges = np.flatnonzero(np.diff(np.concatenate([[0], same.astype(np.int8), [0]])))
+            for a, b in zip(edges[::2] - 1, edges[1::2]):      # a run: its first value and repeats
+                if b - a < n:
+                    continue
+                with np.errstate(invalid="ignore"), warnings.catch_warnings():
+                    warnings.simplefilter("ignore", RuntimeWarning)     # a column held all along
+                    moved = np.nanmax(S[a:b], axis=0) - np.nanmin(S[a:b], axis=0) > span
+                if moved.any():
+                    flags[a:b] |= FLAG_HELD_INPUT
+                    got = self.frozen.setdefault(c, [0, 0.0])
+                    got[0] += int(b - a)
+                    got[1] = float(x[a])
+                    self._frozen_spans.append((float(t[a]), float(t[b - 1])))
 
     def _typical(self, key):
         """Median of the values kept for ``key`` (:meth:`_checked`), per column."""
@@ -632,6 +667,10 @@ class Estimator:
             warnings.warn(f"{path}: {k} of {n} samples outside the database's grid, {far}: the model there "
                           f"is {how} the grid's edge (the farther out, the less its estimates hold); a "
                           "database built over the log's envelope fixes it", PwlWarning, stacklevel=4)
+        for c, (k, v) in self.frozen.items():
+            warnings.warn(f"{path}: input {c!r} held {v:.6g} {self.channel_units.get(c, '')} exactly on {k} of {n} "
+                          f"samples ({k * self.db.dt:.3g} s) while the operating point moved: a frozen word, or a meter "
+                          "at the end of its range? Those samples are not trusted", PwlWarning, stacklevel=4)
         if self.air_data >= max(n, 1) / 100:
             kept = np.concatenate(self._evidence["air_data"])
             _, alt, mach, p2 = kept[np.argsort(kept[:, 0])[kept.shape[0] // 2]]      # the median disagreement
@@ -686,6 +725,9 @@ class Estimator:
             if pm.theta_channel else (None, None)
         Y = Y[a - wide.start: b - wide.start]
         Y[:, [db.names["y"].index(c) for c in self.failed]] = np.nan      # failed for this log
+        t = log.time[a:b]
+        for t0, t1 in self._blind:        # an input frozen there: no measurement update
+            Y[(t >= t0) & (t <= t1)] = np.nan
         return U, Y, S, TH, DE
 
     def _hold_low_rate(self, log: Log, groups, a) -> None:
@@ -753,10 +795,20 @@ class Estimator:
         run again with misfitting sensors used after ``readmit_n`` steps in a row
         (:class:`pwl.runtime.Model`), kept if it misfits far less (:attr:`READMIT_SHARE`); a
         failed sensor misfits as much used or not, and its first run is kept. Then the log runs
-        again without the sensors that failed for it (:meth:`_failed_sensors`), if any."""
-        self.failed = []
+        again without the sensors that failed for it (:meth:`_failed_sensors`), if any.
+
+        First of all, an input found frozen (:meth:`_check_frozen_inputs`) pushed the filter with
+        a value that is not the engine's: the log runs again with no measurement update there
+        (prediction only), so that the tuners keep what they knew before (Wf frozen for a minute of
+        the degraded demo flight's descent: Nc and T48 misfit on a fifth of the flight after it,
+        were dropped for the log, health held all flight)."""
+        self.failed, self._blind = [], []
         self._readmit(False)
         out = once()
+        if self._frozen_spans:
+            self._blind = list(self._frozen_spans)
+            self.reset()
+            out = once()
         if self._misfit_runs[0].max() > self._readmit_n:
             first = sum(self._misfit_in.values())
             self._readmit(True)

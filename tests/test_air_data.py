@@ -62,7 +62,7 @@ def test_which_channels_are_air_data():
 @pytest.mark.parametrize("case", ["Mach 0", "altitude 0", "Mach frozen in the climb"])
 def test_disagreeing_air_data_is_flagged_untrusted_and_named(case, tmp_path, capsys):
     """A log whose Mach or altitude is wrong, but plausible, was trusted (Fn 88 % off with Mach 0):
-    the samples where altitude, Mach and P2 disagree by more than 5 % are flagged FLAG_AIR_DATA
+    the samples where altitude, Mach and P2 disagree by more than 6 % are flagged FLAG_AIR_DATA
     -- exactly those, per pwl.airdata.disagree on the logged values -- not trusted and kept out of
     the snapshots; pwl run names the channels and fails the log."""
     log = degraded()
@@ -161,3 +161,44 @@ def test_a_dt_attribute_the_time_column_contradicts_is_not_believed():
     assert log.dt == pytest.approx(0.015)
     one = Log(log.time[:1], {c: v[:1] for c, v in log.channels.items()}, log.units, attrs={"dt": 0.015})
     assert one.dt == 0.015
+
+
+@pytest.mark.parametrize("case", ["clipped at 2.0 kg/s", "frozen a minute in the descent"])
+def test_an_input_frozen_while_the_engine_moves_is_not_trusted_and_blinds_the_update(case):
+    """Fuel flow clipped through the take-off and climb (T40 up to 7.6 % low, trusted, no word), or
+    frozen for a minute of the descent (Nc and T48 then misfit on a fifth of the flight, were
+    dropped for the log and the health held all flight): the runs of exactly one value longer than
+    the stuck detector's time while altitude, Mach or Nf move more than 5 % of their span are
+    flagged held (not trusted) and named, and the log runs again without measurement updates
+    there, so the filter keeps what it knew: no sensor dropped, health within 0.05 pt RMS of the
+    clean flight's after the run. The clean flight repeats its fuel flow only at cruise, with
+    altitude and Mach still."""
+    log = degraded()
+    wf = log.channels["Wf"].copy()
+    if case.startswith("clipped"):
+        wf = np.minimum(wf, 2.0)
+    else:
+        k = (log.time >= 600) & (log.time < 660)
+        wf[k] = wf[np.flatnonzero(k)[0]]
+    est = Estimator(DB)
+    with pytest.warns(PwlWarning, match=r"input 'Wf' held [0-9.]+ kg/s exactly on \d+ of 54001 samples .* while "
+                                        r"the operating point moved"):
+        res = est.run(with_channels(log, Wf=wf))
+    held = (res.flags & FLAG_HELD_INPUT) != 0
+    n = int(np.ceil(2.0 / est.db.dt))              # Estimator(stuck_after=2.0 s), its default
+    same = np.concatenate([[False], wf[1:] == wf[:-1]])
+    runs = np.flatnonzero(np.diff(np.concatenate([[0], same.astype(np.int8), [0]])))
+    expect = np.zeros(len(log), dtype=bool)
+    alt, mach = log.channels["alt"], log.channels["Mach"]
+    for a, b in zip(runs[::2] - 1, runs[1::2]):
+        if b - a >= n and (np.ptp(alt[a:b]) > 0.05 * 15500 or np.ptp(mach[a:b]) > 0.05):
+            expect[a:b] = True
+    assert expect.sum() >= 4000
+    np.testing.assert_array_equal(held, expect)
+    assert not trusted(res.flags)[expect].any()
+    assert ((res.flags[expect] & FLAG_NO_UPDATE) != 0).all() and est.failed == []
+    after = np.arange(len(log)) > np.flatnonzero(expect)[-1] + 1000
+    h_true = np.column_stack([log.truth[h] for h in est.db.names["h"]])
+    rms = lambda r: np.sqrt(np.mean((r.h_hat[after] - h_true[after]) ** 2))
+    assert rms(res) < rms(clean_run()) + 5e-4
+    assert clean_run().counts()["held_input"] == 0
