@@ -167,7 +167,7 @@ def run_diagnose(args) -> int:
             "drift": " per flight", "wear": " per flight beyond the fleet's normal wear",
             "level": " against the fleet's median (off its fleet from its first flight)"}.get(r.kind, "")
         if r.kind == "intermittent":
-            what = f"intermittent (its bias came and went; last change {readable_detail(r.detail, units)})"
+            what = f"intermittent (its bias came and went; when on {readable_detail(r.detail, units)} from its baseline)"
         after = f" (after {', '.join(r.earlier.split())}, still present)" if r.earlier else ""
         print(f"  {e}: {r.cls} from flight {r.onset}, {what}, confidence {r.confidence:.2f}{after}")
     by_engine: dict = {}

@@ -132,7 +132,7 @@ class EngineTrend:
         d = self.latest
         if d.detected:
             rate = d.kind in ("drift", "wear")
-            what = "rate" if rate else ("last change" if d.kind == "intermittent" else "size")
+            what = "rate" if rate else ("bias when on" if d.kind == "intermittent" else "size")
             size = (f"{what} {100 * d.magnitude:+.2f} "
                     f"+- {100 * d.magnitude_std:.2f} %{'/flight' if rate else ''}")
             if np.isfinite(d.bias):
