@@ -15,7 +15,10 @@ without them is not checked. :func:`disagree` tests samples (vectorised).
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from numba import njit, vectorize
 
 from .units import UnitError, converter, known
 
@@ -30,23 +33,37 @@ AIR_DATA_TOLERANCE = 0.06
 
 _P_SL, _T_SL, _LAPSE, _G, _R = 101325.0, 288.15, 0.0065, 9.80665, 287.05287
 _H_TROP, _P_TROP, _T_TROP = 11000.0, 22632.06, 216.65
+_GAMMA = 1.4
 
 
+@njit(cache=True, nogil=True)
+def _isa(alt_m):
+    if alt_m <= _H_TROP:
+        return _P_SL * max(1.0 - _LAPSE * alt_m / _T_SL, 1e-9) ** (_G / (_LAPSE * _R))
+    return _P_TROP * math.exp(-_G * (alt_m - _H_TROP) / (_R * _T_TROP))
+
+
+@vectorize(["float64(float64)"], cache=True, nopython=True)
 def isa_pressure(alt_m):
     """Ambient static pressure (Pa) of the ICAO standard atmosphere at pressure altitude ``alt_m``
-    (m, array-like; troposphere and lower stratosphere, up to 20 km)."""
-    h = np.asarray(alt_m, dtype=np.float64)
-    with np.errstate(invalid="ignore"):
-        low = _P_SL * np.power(np.maximum(1.0 - _LAPSE * h / _T_SL, 1e-9), _G / (_LAPSE * _R))
-        high = _P_TROP * np.exp(-_G * (h - _H_TROP) / (_R * _T_TROP))
-    return np.where(h <= _H_TROP, low, high)
+    (m; troposphere and lower stratosphere, up to 20 km). A ufunc: arrays or scalars, and callable
+    from numba code."""
+    return _isa(alt_m)
 
 
-def inlet_pressure(alt_m, mach, gamma: float = 1.4):
+@vectorize(["float64(float64, float64)"], cache=True, nopython=True)
+def inlet_pressure(alt_m, mach):
     """The inlet total pressure (Pa) of full ram recovery at pressure altitude ``alt_m`` (m) and
-    flight Mach ``mach`` (subsonic isentropic compression; array-like, broadcast)."""
-    m = np.asarray(mach, dtype=np.float64)
-    return isa_pressure(alt_m) * (1.0 + 0.5 * (gamma - 1.0) * m * m) ** (gamma / (gamma - 1.0))
+    flight Mach ``mach`` (subsonic isentropic compression, gamma 1.4). A ufunc."""
+    return _isa(alt_m) * (1.0 + 0.5 * (_GAMMA - 1.0) * mach * mach) ** (_GAMMA / (_GAMMA - 1.0))
+
+
+@vectorize(["boolean(float64, float64, float64, float64)"], cache=True, nopython=True)
+def _disagree(alt_m, mach, p2, tolerance):
+    want = inlet_pressure(alt_m, mach)
+    if not (p2 > 0.0 and want > 0.0):       # missing (NaN) or not a pressure: no test
+        return False
+    return abs(math.log(p2 / want)) > math.log1p(tolerance)
 
 
 def air_data_channels(schedule_channels, units: dict, delta_channel) -> tuple | None:
@@ -70,10 +87,9 @@ def air_data_channels(schedule_channels, units: dict, delta_channel) -> tuple | 
     return alt[0][0], mach[0], alt[0][1], p_scale
 
 
-def disagree(alt_m, mach, p2, tolerance: float = AIR_DATA_TOLERANCE) -> np.ndarray:
-    """bool array: the samples whose inlet total pressure ``p2`` (Pa) is off the one pressure
+def disagree(alt_m, mach, p2, tolerance: float = AIR_DATA_TOLERANCE):
+    """bool (array): the samples whose inlet total pressure ``p2`` (Pa) is off the one pressure
     altitude ``alt_m`` (m) and Mach ``mach`` give (:func:`inlet_pressure`) by more than
-    ``tolerance`` (relative, on a log scale); a sample missing any of the three: False."""
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        off = np.abs(np.log(np.asarray(p2, dtype=np.float64) / inlet_pressure(alt_m, mach)))
-    return off > np.log1p(tolerance)
+    ``tolerance`` (relative, on a log scale); a sample missing any of the three: False. Numba code
+    calls the ufunc ``_disagree(alt_m, mach, p2, tolerance)`` (:class:`pwl.streaming.Stream`)."""
+    return _disagree(alt_m, mach, p2, tolerance)

@@ -10,15 +10,18 @@ fed live (an engine monitoring unit, a test cell, a simulation in the loop)::
     flags = stream.step(row)             # one sample: estimates in stream.x_hat, .z_hat, ...
 
 ``step`` calls the same numba step loop (:func:`pwl.runtime.step_loop`, on one row) with the same
-screening before and the same reporting pass after, through one compiled function whose only
-arguments are the stream's state (a numba structure) and the sample: its numbers equal a batch
-run's bit for bit (but where a scheduling channel or theta/delta jumps by more than 5 % of its
-span in one sample: unable to see ahead, the stream holds the channel until it comes back or for
-64 samples, :func:`_hold_jumps`, where the batch holds only the runs that do come back). A step
-costs about 1.3 us from Python against 0.45 us per sample in batch on the demo database (``pwl
-bench stream``): numba's call from Python (0.33 us), the row's check (0.1 us), the step loop
-for one row (0.7 us; the kernel's records go by reference, :mod:`pwl.byref`). Samples that
-arrive in packets (a data bus, a file being written) run at batch speed through
+screening before and the same reporting pass and air-data test (:mod:`pwl.airdata`) after,
+through one compiled function whose only arguments are the stream's state (a numba structure)
+and the sample: its numbers equal a batch run's bit for bit (but where a scheduling channel or
+theta/delta jumps by more than 5 % of its span in one sample: unable to see ahead, the stream
+holds the channel until it comes back or for 64 samples, :func:`_hold_jumps`, where the batch
+holds only the runs that do come back). A step costs about 1.4 us from Python against 0.5 us per
+sample in batch on the demo database (``pwl bench stream``): numba's call from Python (0.33 us),
+the row's check (0.1 us), the step loop for one row (0.7 us; the kernel's records go by
+reference, :mod:`pwl.byref`), the air-data test (0.1 us). What needs the whole log is a log
+run's only: an input frozen while the engine moves, and the second opinions
+(``Estimator._second_opinions``: a stream leaves a misfitting sensor out for as long as it
+misfits). Samples that arrive in packets (a data bus, a file being written) run at batch speed through
 ``Estimator.run_arrays``, which continues from the current state. The stream
 shares the estimator's filter state: ``stream.reset()`` (or ``est.reset()``) restarts both.
 """
@@ -31,14 +34,15 @@ from numba import njit, types
 from .byref import fields, record
 from .errors import UsageError
 from .estimator import _SPIKE as _HELD, BURST_MAX, SPIKE_FRACTION
-from .runtime import (FLAG_DYN_OUTSIDE, FLAG_TRIM_OUTSIDE, Inputs, Kernel, step_loop, blank_implausible, report, screen,
-                      state_layout, workspace)
+from .airdata import AIR_DATA_TOLERANCE, _disagree
+from .runtime import (FLAG_AIR_DATA, FLAG_DYN_OUTSIDE, FLAG_HELD_INPUT, FLAG_NOT_STARTED, FLAG_TRIM_OUTSIDE,
+                      Inputs, Kernel, blank_implausible, report, screen, state_layout, step_loop, workspace)
 
 
 _F8 = np.dtype(np.float64)
 
 
-_StreamState = record("StreamState", ["kern", "cols", "post", "jump"],
+_StreamState = record("StreamState", ["kern", "cols", "post", "jump", "air"],
                       "Everything a streamed step needs, by reference (one argument to unbox per call).")
 
 
@@ -72,7 +76,7 @@ def _hold_jumps(S, TH, DE, state, osl, jump, longest):
 def _take_row(st, row):
     """Copy ``row`` into the kernel's one-row inputs, hold its jumps (:func:`_hold_jumps`) and
     screen it (:func:`pwl.runtime.screen`), as a batch run does before its step loop."""
-    kern, cols, post, jump = fields(st)
+    kern, cols, post, jump, _ = fields(st)
     io, _, _, filt, _, out, _ = fields(kern)
     U, Y, S, TH, DE = io
     iu, iy, i_s, ith, ide, t_std, p_std, osl = cols
@@ -94,7 +98,7 @@ def _take_row(st, row):
 def _report(st):
     """The reporting pass of a batch run after its step loop (:func:`pwl.runtime.report`);
     returns the step's flags."""
-    kern, _, post, _ = fields(st)
+    kern, _, post, _, _ = fields(st)
     flags = fields(kern)[5].flags
     _, _, q_hat, VT, h_ref, h_lo, h_hi, h_hat, h_held = post
     report(q_hat, VT, h_ref, h_lo, h_hi, h_hat, flags, h_held)
@@ -103,11 +107,20 @@ def _report(st):
 
 @njit(cache=True, nogil=True, _nrt=False)
 def _stream_step(st, row):
-    """One sample ``row`` (the stream's channels) through screen, the step loop and report; the
-    state ``st`` and the kernel's records are passed by reference (:mod:`pwl.byref`)."""
+    """One sample ``row`` (the stream's channels) through screen, the step loop, report and the
+    air-data test (:meth:`pwl.Estimator._check_air_data`); the state ``st`` and the kernel's
+    records are passed by reference (:mod:`pwl.byref`)."""
     _take_row(st, row)
     step_loop(fields(st)[0])
-    return _report(st)
+    f = _report(st)
+    air = fields(st)[4]       # [altitude column, Mach column, altitude to m, delta to Pa, tolerance]
+    if air[0] >= 0.0 and f & (FLAG_NOT_STARTED | FLAG_HELD_INPUT) == 0:
+        io = fields(fields(st)[0])[0]
+        S, DE = io[2], io[4]
+        if _disagree(S[0, int(air[0])] * air[2], S[0, int(air[1])], DE[0] * air[3], air[4]):
+            f |= FLAG_AIR_DATA
+            fields(fields(st)[0])[5].flags[0] = f
+    return f
 
 
 class Stream:
@@ -163,7 +176,9 @@ class Stream:
         self._jump = np.vstack([np.zeros(ns + 2), SPIKE_FRACTION * span, np.full(ns + 2, np.nan)])
         nx, _, _, _, nq, _ = est.pm.dims
         osl = state_layout(nx, nq, nu, ns, ny)[3]          # the filter state's last scheduling values
-        self._st = _StreamState(Kernel(io, *records, work), tuple(index) + th + (osl,), post, self._jump)
+        ja, jm, ka, kp = est._air if est._air is not None else (-1, -1, 1.0, 1.0)
+        air = np.array([ja, jm, ka, kp * (db.correction.P_std if db.correction else 1.0), AIR_DATA_TOLERANCE])
+        self._st = _StreamState(Kernel(io, *records, work), tuple(index) + th + (osl,), post, self._jump, air)
         self._stop = FLAG_TRIM_OUTSIDE | FLAG_DYN_OUTSIDE if db.policy == "error" else 0
         self._n = len(self.channels)
         # numba's compiled entry for exactly these argument types (compiled or loaded here, not

@@ -202,3 +202,23 @@ def test_an_input_frozen_while_the_engine_moves_is_not_trusted_and_blinds_the_up
     rms = lambda r: np.sqrt(np.mean((r.h_hat[after] - h_true[after]) ** 2))
     assert rms(res) < rms(clean_run()) + 5e-4
     assert clean_run().counts()["held_input"] == 0
+
+
+def test_a_stream_flags_disagreeing_air_data_as_a_log_run_does():
+    """pwl.streaming.Stream runs the same test (the ufunc pwl.airdata._disagree, in its compiled
+    step) on each sample: the same samples flagged as Estimator.run's on the Mach-0 flight."""
+    from pwl.streaming import Stream
+    log = degraded()
+    sl = slice(20000, 30000)
+    chans = {c: v[sl].copy() for c, v in log.channels.items()}
+    chans["Mach"][:] = 0.0
+    bad = Log(log.time[sl] - log.time[sl][0], chans, log.units)
+    est = Estimator(DB)
+    with pytest.warns(PwlWarning, match="disagree"):
+        batch = est.run(bad)
+    stream = Stream(est)
+    rows = np.column_stack([chans[c] for c in stream.channels])
+    flags = np.array([stream.step(r) for r in rows])
+    air = (flags & FLAG_AIR_DATA) != 0
+    np.testing.assert_array_equal(air, (batch.flags & FLAG_AIR_DATA) != 0)
+    assert air.sum() > 5000
