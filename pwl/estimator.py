@@ -367,7 +367,7 @@ class Estimator:
         self.state[:] = np.nan
         self.state[nx:nx + nq] = self.q0 if q0 is None else np.asarray(q0, dtype=np.float64)
         self._h_held[:] = self.db.tuner["h_ref"] + self.db.tuner["V_pinv"] @ self.state[nx:nx + nq]
-        self.state[oyl + ny:ost + 1] = 0.0     # the sensor record's counts, not started
+        self.state[oyl + ny:ost + 2] = 0.0     # the sensor record's counts, not started, no outage
         self.state[oyl + 6 * ny:oyl + 7 * ny] = np.inf      # its smallest change of each sensor: none yet
         self.t_idx[:] = 0
         self.d_idx[:] = 0

@@ -74,7 +74,8 @@ STUCK_ROWS = 8            # the sensor record per sensor in the filter state: th
                           # rows (_stuck), then the steps it has misfit in a row (_predict_measurements)
 MISFIT_ROW = 7
 NEVER = 2 ** 62           # a step count never reached (Model.readmit_n: misfitting sensors stay out)
-FLAG_SETTLING = 2048      # within the filter's settling time of its first valid sample
+FLAG_SETTLING = 2048      # within the filter's settling time of its first valid sample, or of its
+                          # first update after more steps without one than that
                           # (Model.settle_n steps): the estimates are still converging from q0 and
                           # the trims (Estimator(settle=...): 3 time constants of the database's
                           # slowest error dynamics); counted, not trusted (pwl.results.trusted)
@@ -285,14 +286,14 @@ def block_layout(nx, nu, ny, nz, nq):
 def state_layout(nx, nq, nu, ns, ny):
     """Offsets in the filter state vector [x_abs (nx), q (nq), u_last (nu), s_last (ns),
     theta_last, delta_last, the sensor record (STUCK_ROWS x ny: :func:`_stuck`, MISFIT_ROW), steps since
-    the first valid sample (0: not started)]
+    the first valid sample (0: not started), steps without a measurement update in a row]
     and its size: (ox, oq, ou, osl, oth, ode, oyl, ost, size)."""
     ou = nx + nq
     osl = ou + nu
     oth = osl + ns
     oyl = oth + 2
     ost = oyl + STUCK_ROWS * ny
-    return 0, nx, ou, osl, oth, oth + 1, oyl, ost, ost + 1
+    return 0, nx, ou, osl, oth, oth + 1, oyl, ost, ost + 2
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -755,6 +756,12 @@ def step_loop(kern):
             update = _subset_gain(w, w.Ps, w.pr, na * na, oC, oK, ny, na)
         if not update:
             flags = (flags & ~(FLAG_PARTIAL | FLAG_HEALTH_HELD)) | FLAG_NO_UPDATE
+            state[ost + 1] += 1.0
+        else:
+            if state[ost + 1] > model.settle_n:   # back from an outage longer than the settling time
+                state[ost] = 1.0                  # (an engine restarted, a sensor bus back): settle again
+                flags |= FLAG_SETTLING
+            state[ost + 1] = 0.0
         _measurement_update(model, grids, filt, w, update, oK, nx, na, ny, (flags & FLAG_HEALTH_HELD) != 0)
         _outputs(model, state, out, w, k, oF, oG, nx, nq, nz, tz, cz)
         out.flags[k] = flags

@@ -145,3 +145,26 @@ def test_messages_for_coarse_time_stamps_and_channel_names_in_another_case():
     log = Log(np.arange(3.0), {"wf": np.ones(3)}, {"wf": ""})
     with pytest.raises(LogError, match=r"channel 'Wf' is missing \(log has: wf\); 'wf' differs in case only"):
         log.require(["Wf"])
+
+
+def test_the_filter_settles_again_after_an_outage_longer_than_its_settling_time():
+    """Two cruise slices of different engines in one log, 60 s of nothing between (an engine shut
+    down and restarted, a recorder's bus lost): the first update after the outage and the settling
+    time after it are flagged FLAG_SETTLING, not trusted (the health there was the first engine's,
+    2.5 points off); an outage shorter than the settling time is not."""
+    est = Estimator(DB)
+    a, b = read_log(LOGS[0]), read_log(LOGS[1])
+    n = int(np.ceil(est.settle / est.db.dt))
+
+    def joined(gap):
+        chans = {c: np.concatenate([a.channels[c][25000:29000], np.full(gap, np.nan), b.channels[c][25000:29000]])
+                 for c in a.channels}
+        return Log(np.arange(8000 + gap) * est.db.dt, chans, a.units)
+    long_gap = int(60.0 / est.db.dt)
+    res = est.run(joined(long_gap))
+    settling = (res.flags & FLAG_SETTLING) != 0
+    back = 4000 + long_gap
+    np.testing.assert_array_equal(np.flatnonzero(settling), np.r_[0:n, back:back + n])
+    assert not trusted(res.flags)[back:back + n].any() and trusted(res.flags)[back + n:].all()
+    short = est.run(joined(n // 2))
+    assert np.flatnonzero(short.flags & FLAG_SETTLING).max() == n - 1
