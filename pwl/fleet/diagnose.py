@@ -31,6 +31,8 @@ when nothing changed.
 - **Drift**: a ramp that wins is reported as kind ``drift`` with its rate per flight.
 - **Wear**: in a fleet, the whole-history ramp is tested against the fleet's normal wear
   (:func:`wear_reference`) instead of ``min_rate``: kind ``wear``, its rate beyond the fleet's.
+  Each engine's rate in it is fitted off its own steps, so a change most engines show at one
+  flight (a fleet-wide recalibration: :func:`common_steps`, named in a warning) is not wear.
 - **Sensor episodes**: a sensor bias that goes away is ``cleared`` (not a fault), one that comes
   back is ``intermittent`` (:func:`_episodes`), judged flight by flight against the sensor's
   reading before its first step.
@@ -356,6 +358,7 @@ class FleetNorm:
     spread: np.ndarray
     engines: int
     rest: np.ndarray     # (m,) robust spread per deviation channel of what health does not explain
+    common: list = field(default_factory=list)   # the fleet-wide steps left out (:func:`common_steps`)
 
     def at(self, S: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(mean (k,), covariance (k, k)) in the deviation channels ``idx`` (k,) with signatures
@@ -397,19 +400,141 @@ def _fleet_norm(series: list[EngineSeries], Sigma: np.ndarray, cfg: "DiagnosisCo
 def wear_reference(series: list[EngineSeries], Sigma: np.ndarray,
                    cfg: DiagnosisConfig = DiagnosisConfig()) -> FleetNorm | None:
     """The normal wear of a fleet (:func:`_fleet_norm`): each engine's deviation rate
-    (least-squares slope per channel over its flight numbers) as health-parameter rates. Like
-    Sigma it uses every engine's whole history: an engine is compared with its fleet's wear, not
-    with its own."""
+    (least-squares slope per channel over its flight numbers, its level and its own steps,
+    :func:`engine_steps`, as nuisances) as health-parameter rates. Like Sigma it uses every
+    engine's whole history: an engine is compared with its fleet's wear, not with its own.
+    Without its steps as nuisances, a fault's step was part of the engine's rate, which the
+    median over the engines tolerated only while fewer than half of them changed at once: a T48
+    recalibration from flight 10 of 20 on 10 of 12 engines became every engine's "wear" (lpt_eff
+    -0.26 %/flight; truth at most 0.01) and, subtracted from each engine's flights, made its
+    flights before it a sensor drift from flight 0."""
+    Wt = np.linalg.inv(np.linalg.cholesky(Sigma))
+
     def slope(D, t):
-        tc = t - t.mean()
-        return tc @ D / (tc @ tc)
+        steps = engine_steps(D, Wt, t, cfg)
+        X = np.column_stack([np.ones_like(t), t - t.mean()] + [(t >= s).astype(float) for s in steps])
+        return np.linalg.lstsq(X, D, rcond=None)[0][1]
     return _fleet_norm(series, Sigma, cfg, slope)
 
 
-def fleet_norms(series: list[EngineSeries], Sigma: np.ndarray, cfg: DiagnosisConfig = DiagnosisConfig()) -> tuple:
+def _largest_step(D, Wt, t, steps=()):
+    """(flight number, relative size |delta|, Bonferroni p-value over the change points tried)
+    of the largest step of deviations D (n, m) at flight numbers t, off the engine's level and
+    wear line and the steps at ``steps`` (flight numbers): the largest likelihood gain E = g^T g
+    |Wt delta|^2 (as :func:`_fit_changes`), chi-square with m degrees of freedom when nothing
+    changed at that flight."""
+    X = np.column_stack([np.ones_like(t), t - t.mean()] + [(t >= s).astype(float) for s in steps])
+    Xp = np.linalg.pinv(X)
+    best = (np.nan, -1.0, 0.0)
+    taus = [tau for tau in t[1:] if tau not in steps]
+    for tau in taus:
+        f = (t >= tau).astype(float)
+        g = f - X @ (Xp @ f)
+        g2 = float(g @ g)
+        if g2 < 1e-9:
+            continue
+        delta = D.T @ g / g2
+        E = g2 * float(np.sum((Wt @ delta) ** 2))
+        if E > best[1]:
+            best = (float(tau), E, float(np.linalg.norm(delta)))
+    p = float(stats.chi2.sf(best[1], D.shape[1])) * max(1, len(taus)) if best[1] >= 0 else 1.0
+    return best[0], best[2], p
+
+
+def engine_steps(D: np.ndarray, Wt: np.ndarray, t: np.ndarray, cfg: DiagnosisConfig = DiagnosisConfig(),
+                 most: int = 3) -> list[float]:
+    """The flight numbers of an engine's steps over its whole history (deviations D (n, m) at
+    flight numbers t, whitening Wt), largest first: the largest step off its level, wear line
+    and the steps already found, while significant (chi-square, Bonferroni over the change
+    points, below ``cfg.alpha``) and at least ``cfg.min_step``; at most ``most``."""
+    steps: list[float] = []
+    while len(steps) < most and t.size >= 4:
+        tau, size, p = _largest_step(D, Wt, t, steps)
+        if not (p < cfg.alpha and size >= cfg.min_step):
+            break
+        steps.append(tau)
+    return steps
+
+
+@dataclass
+class CommonStep:
+    """A change most of a fleet's engines show at the same flight (:func:`common_steps`): its
+    ``onset`` (flight number), the ``engines`` whose largest step is there, out of ``eligible``;
+    ``cls`` the hypothesis most of them are isolated as (``alike`` engines) and ``detail`` its
+    median fit over those (as a decision's detail: fractions, sensor biases in their unit)."""
+
+    onset: float
+    engines: list[str]
+    eligible: int
+    cls: str
+    alike: int
+    detail: str
+
+    def describe(self, units: dict | None = None) -> str:
+        """One line for people: "10 of 12 engines changed alike from flight 10 (sensor:T48
+        +30.6 K): ..." (units: :func:`pwl.fleet.trending.detail_units`)."""
+        from .trending import readable_detail
+        what = readable_detail(self.detail, units or {})
+        how = (f"alike from flight {self.onset:g} ({what})" if self.alike == len(self.engines) else
+               f"from flight {self.onset:g} ({self.alike} of them alike: {what})")
+        return (f"{len(self.engines)} of {self.eligible} engines changed {how}: a fleet-wide change (a sensor "
+                "recalibration, a software or fuel change)? Left out of the fleet's normal wear; each engine's "
+                "rows report it from that flight")
+
+
+def common_steps(series: list[EngineSeries], Sigma: np.ndarray,
+                 cfg: DiagnosisConfig = DiagnosisConfig()) -> list[CommonStep]:
+    """Changes most of the fleet shows at the same flight (a fleet-wide sensor recalibration, a
+    software or fuel change): of the engines with at least ``cfg.wear_flights`` complete flights
+    (none with fewer than ``cfg.wear_engines``), more than half have a step
+    (:func:`engine_steps`) at that flight number. Each is isolated on its engines (the bank's
+    hypothesis with the largest T - cost, the engine's other steps as nuisances); the class most
+    of them share is named with its median fit."""
+    eng = []
+    Wt = np.linalg.inv(np.linalg.cholesky(Sigma))
+    for es in series:
+        ok = np.all(np.isfinite(es.D), axis=1)
+        if ok.sum() >= cfg.wear_flights:
+            D, t = es.D[ok], flight_numbers(es)[ok]
+            eng.append((es, D, t, np.nanmean(es.S[ok], axis=0), engine_steps(D, Wt, t, cfg)))
+    if len(eng) < cfg.wear_engines:
+        return []
+    at: dict = {}
+    for es, *_, steps in eng:
+        for tau in steps:
+            at.setdefault(tau, []).append(es.engine)
+    bank = hypotheses(series[0].columns, cfg.pairs)
+    found = []
+    for tau in sorted(k for k in at if 2 * len(at[k]) > len(eng)):
+        fits: dict = {}
+        for es, D, t, S, steps in eng:
+            if tau in steps:
+                got = _fit_changes(D, Wt, S, t, [tau], "step", bank, cfg.eps, trend=cfg.wear,
+                                   steps=[s for s in steps if s != tau])
+                _, hi, _, th, _, _ = max(got, key=lambda f: f[2] - bank[f[1]].cost(cfg))
+                fits.setdefault(hi, []).append(th)
+        hi = max(fits, key=lambda h: len(fits[h]))
+        med = np.median(np.array(fits[hi]), axis=0)
+        detail = " ".join(f"{series[0].columns[c]}={v:+.5g}" for c, v in zip(bank[hi].columns, med))
+        found.append(CommonStep(tau, at[tau], len(eng), bank[hi].name, len(fits[hi]), detail))
+    return found
+
+
+def fleet_norms(series: list[EngineSeries], Sigma: np.ndarray, cfg: DiagnosisConfig = DiagnosisConfig(),
+                units: dict | None = None) -> tuple:
     """(normal wear (None without ``cfg.wear``), normal level) an engine of ``series`` is judged
-    against (:func:`wear_reference`, :func:`level_reference`)."""
-    return (wear_reference(series, Sigma, cfg) if cfg.wear else None), level_reference(series, Sigma, cfg)
+    against (:func:`wear_reference`, :func:`level_reference`). A change most engines show at
+    the same flight (:func:`common_steps`) is a nuisance of the normal wear (kept in the wear's
+    ``common``) and named once in a :class:`PwlWarning` (``units``: for its size, as
+    :func:`pwl.fleet.trending.detail_units`). The level (the engines' first n_base + 1 flights)
+    holds such a step only when it is among those flights, and then on every engine alike."""
+    common = common_steps(series, Sigma, cfg)
+    for c in common:
+        warnings.warn(PwlWarning(c.describe(units)), stacklevel=2)
+    wear = wear_reference(series, Sigma, cfg) if cfg.wear else None
+    if wear is not None:
+        wear.common = common
+    return wear, level_reference(series, Sigma, cfg)
 
 
 def level_reference(series: list[EngineSeries], Sigma: np.ndarray,
@@ -967,7 +1092,8 @@ def diagnose_fleet(records: list[FlightRecord], db: GainDatabase,
     sig, centers = prepare(records, db)
     series = [engine_series(v, sig, len(centers)) for v in group_engines(records).values()]
     Sigma = noise_covariance(series, cfg.floor)
-    wear, level = fleet_norms(series, Sigma, cfg)
+    from .trending import detail_units
+    wear, level = fleet_norms(series, Sigma, cfg, detail_units(db))
     rows = []
     for es in series:
         rows += diagnose_engine(es, Sigma, cfg, wear, level)

@@ -175,7 +175,7 @@ def engine_trend(records: list[FlightRecord], db: GainDatabase,
     if others:
         series = [es] + [engine_series(v, sig, len(centers)) for v in group_engines(others).values()]
         Sigma = noise_covariance(series, cfg.floor)
-        wear, level = fleet_norms(series, Sigma, cfg)
+        wear, level = fleet_norms(series, Sigma, cfg, detail_units(db))
     else:
         Sigma = noise_covariance([es], cfg.floor)
     dec = diagnose_engine(es, Sigma, cfg, wear, level)
