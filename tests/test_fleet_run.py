@@ -250,7 +250,9 @@ def test_a_worker_killed_fails_only_the_log_that_kills_it(tmp_path, monkeypatch)
     logs = [slice_log(tmp_path / "logs" / f"{n}.h5", "flight_new", 2000 * i, n=600) for i, n in enumerate(names)]
     monkeypatch.setattr(runs, "run_log", _run_log_that_kills_workers)
     res = run_many(DB, logs, tmp_path / "out", workers=2)
-    assert [r.status for r in res] == [OK, OK, FAILED, OK, OK, OK], [r.error for r in res]
+    # a log whose file was written just before the pool broke is found done when it runs again
+    assert [r.status in (OK, SKIPPED) for r in res] == [True, True, False, True, True, True], [r.error for r in res]
+    assert res[0].status == OK and res[2].status == FAILED
     assert res[2].error == runs.WORKER_DIED
     assert os.path.exists(tmp_path / "out" / "flaky-died")      # it did die once, then ran alone
     monkeypatch.undo()
