@@ -61,11 +61,11 @@ def hold_low_rate(a: np.ndarray, max_rows: int) -> dict[int, int]:
     held = {}
     n = a.shape[0]
     rows = np.arange(n)
-    for j in range(a.shape[1]):
-        ok = np.isfinite(a[:, j])
+    present = np.isfinite(a)
+    counts = present.sum(axis=0)
+    for j in np.flatnonzero((counts >= 3) & (counts <= (1.0 - LOW_RATE_SHARE) * n)):
+        ok = present[:, j]
         idx = np.flatnonzero(ok)
-        if idx.size < 3 or idx.size > (1.0 - LOW_RATE_SHARE) * n:
-            continue
         steps = np.diff(idx)
         med = int(np.median(steps))
         if not 2 <= med <= max_rows or np.mean(steps <= 2 * med) < 0.9:
@@ -73,7 +73,7 @@ def hold_low_rate(a: np.ndarray, max_rows: int) -> dict[int, int]:
         last = np.maximum.accumulate(np.where(ok, rows, -1))
         fill = ~ok & (last >= 0) & (rows - last <= 2 * med)
         a[fill, j] = a[last[fill], j]
-        held[j] = med
+        held[int(j)] = med
     return held
 
 
