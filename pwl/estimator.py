@@ -17,7 +17,7 @@ from .grid import Axis, Grid
 from .h5io import atomic_h5
 from .logs import (Log, LogError, check_time, read_header, read_log, read_rows, resample, rows_missing, sample_interval,
                    time_gaps)
-from .runtime import (NEVER, FLAG_AIR_DATA, FLAG_DYN_OUTSIDE, FLAG_HEALTH_HELD, FLAG_HELD_INPUT, FLAG_IMPLAUSIBLE, FLAG_NO_UPDATE, FLAG_NOT_STARTED,
+from .runtime import (NEVER, SMALLEST_ROW, FLAG_AIR_DATA, FLAG_DYN_OUTSIDE, FLAG_HEALTH_HELD, FLAG_HELD_INPUT, FLAG_IMPLAUSIBLE, FLAG_NO_UPDATE, FLAG_NOT_STARTED,
                       FLAG_SETTLING, FLAG_STUCK, FLAG_TRIM_OUTSIDE, HEALTH_HOLD_RATIO, MISFIT_SIGMAS, STUCK_AFTER,
                       STUCK_SIGMAS, Bias, Filter, Inputs, Outputs, PackedModel, blank_implausible, filter_loop, report, screen, spike_mask, burst_mask, state_layout)
 from .results import LOG_ATTRS, Result, append_rows, init_result_file
@@ -77,19 +77,25 @@ def hold_low_rate(a: np.ndarray, max_rows: int) -> dict[int, int]:
     return held
 
 
+def true_runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(starts, stops) of the runs of True in the bool vector ``mask``: mask[starts[i]:stops[i]]."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(np.int8), [0]])))
+    return edges[::2], edges[1::2]
+
+
 def _longest_runs(hit: np.ndarray, runs: np.ndarray) -> None:
     """Update ``runs`` (2, k): [longest run of True in each column of ``hit`` (n, k) so far, the
     run going on at its end], continuing the runs of the rows before ``hit``'s."""
     for j in range(hit.shape[1]):
-        edges = np.flatnonzero(np.diff(np.concatenate([[0], hit[:, j].astype(np.int8), [0]])))
-        if not edges.size:
+        starts, stops = true_runs(hit[:, j])
+        if not starts.size:
             runs[1, j] = 0.0
             continue
-        lens = (edges[1::2] - edges[::2]).astype(np.float64)
-        if edges[0] == 0:
+        lens = (stops - starts).astype(np.float64)
+        if starts[0] == 0:
             lens[0] += runs[1, j]
         runs[0, j] = max(runs[0, j], lens.max())
-        runs[1, j] = lens[-1] if edges[-1] == hit.shape[0] else 0.0
+        runs[1, j] = lens[-1] if stops[-1] == hit.shape[0] else 0.0
 
 
 def spikes(a: np.ndarray, span: np.ndarray, width: int = SPIKE_WIDTH, fraction: float = SPIKE_FRACTION,
@@ -368,7 +374,7 @@ class Estimator:
         self.state[nx:nx + nq] = self.q0 if q0 is None else np.asarray(q0, dtype=np.float64)
         self._h_held[:] = self.db.tuner["h_ref"] + self.db.tuner["V_pinv"] @ self.state[nx:nx + nq]
         self.state[oyl + ny:ost + 2] = 0.0     # the sensor record's counts, not started, no outage
-        self.state[oyl + 6 * ny:oyl + 7 * ny] = np.inf      # its smallest change of each sensor: none yet
+        self.state[oyl + SMALLEST_ROW * ny:oyl + (SMALLEST_ROW + 1) * ny] = np.inf   # no change seen yet
         self.t_idx[:] = 0
         self.d_idx[:] = 0
         self._b_idx[:] = 0
@@ -619,9 +625,8 @@ class Estimator:
             S = np.where((S >= lim[0]) & (S <= lim[1]), S, np.nan)      # held (spikes, implausible): no move
         for j, c in enumerate(self.db.names["u"]):
             x = U[:, j]
-            same = np.concatenate([[False], x[1:] == x[:-1]])
-            edges = np.flatnonzero(np.diff(np.concatenate([[0], same.astype(np.int8), [0]])))
-            for a, b in zip(edges[::2] - 1, edges[1::2]):      # a run: its first value and repeats
+            starts, stops = true_runs(np.concatenate([[False], x[1:] == x[:-1]]))
+            for a, b in zip(starts - 1, stops):      # a run: its first value and its repeats
                 if b - a < n:
                     continue
                 with np.errstate(invalid="ignore"), warnings.catch_warnings():

@@ -72,6 +72,7 @@ STUCK_SIGMAS = 4.0
 STUCK_AFTER = 2.0
 STUCK_ROWS = 8            # the sensor record per sensor in the filter state: the stuck detector's 7
                           # rows (_stuck), then the steps it has misfit in a row (_predict_measurements)
+SMALLEST_ROW = 6          # the record's row of each sensor's smallest relative change seen (_stuck)
 MISFIT_ROW = 7
 NEVER = 2 ** 62           # a step count never reached (Model.readmit_n: misfitting sensors stay out)
 FLAG_SETTLING = 2048      # within the filter's settling time of its first valid sample, or of its
@@ -473,7 +474,7 @@ def _stuck(model, state, o, ny, i, yk, s, others_change):
             c = abs(yk - last) / abs(yk)
             state[j + _u(3) * d] += c
             state[j + _u(5) * d] += 1.0
-            state[j + _u(6) * d] = min(state[j + _u(6) * d], c)
+            state[j + _u(SMALLEST_ROW) * d] = min(state[j + _u(SMALLEST_ROW) * d], c)
         state[j] = yk
         state[j + d] = 0.0
         state[j + _u(2) * d] = s
@@ -483,7 +484,7 @@ def _stuck(model, state, o, ny, i, yk, s, others_change):
     if rep < model.stuck_n:
         return False
     before = state[j + _u(4) * d] - rep
-    res = state[j + _u(6) * d]
+    res = state[j + _u(SMALLEST_ROW) * d]
     if rep == np.inf or (others_change and (
             abs(s - state[j + _u(2) * d]) > (model.gate[1, i] + (res if res < np.inf else 0.0)) * abs(s)
             or (before >= model.stuck_n and state[j + _u(3) * d] > 0.5 * model.gate[2, i] * before
