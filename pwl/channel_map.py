@@ -14,7 +14,12 @@ A small TOML file read with the standard library's tomllib::
 
 A channel's ``scale`` and ``offset`` (numbers) make it column * scale + offset, in the map's
 ``unit``: speeds logged in percent of a reference speed, counts, volts. The column's own unit,
-if the log declares one, is then not used.
+if the log declares one, is then not used. Its ``lag`` (seconds, negative: early) is how late the
+column is logged (a bus's or a logger's latency): the channel at time t is the column's value at
+t + lag, linearly interpolated; the last lag seconds are then missing (NaN). The run warns when
+the inlet pressure runs behind or ahead of altitude and Mach (:mod:`pwl.airdata`)::
+
+    P2 = { column = "P2", lag = 1.0 }     # P2 logged 1 s late
 
 Every channel the model reads is listed: columns the map does not name (and truth channels) are
 dropped, so a log's other columns (text, status words) never stop a run. A unit is any symbol of
@@ -48,9 +53,9 @@ class ChannelMap:
     Parameters
     ----------
     channels : dict
-        Model channel -> (log column, unit, scale, offset): the channel is column * scale +
+        Model channel -> (log column, unit, scale, offset, lag): the channel is column * scale +
         offset in ``unit`` ("" for the log's own declaration; with a scale or offset other than
-        (1, 0), for none); a unit is a symbol of :mod:`pwl.units`.
+        (1, 0), for none), logged ``lag`` s late; a unit is a symbol of :mod:`pwl.units`.
     time : str
         The log's time column ("" to find it by name: time, timestamp, datetime or t).
     time_unit : str
@@ -113,14 +118,15 @@ class ChannelMap:
         for name, spec in chans.items():
             key = f"[channels] {name}"
             e = _entry({"column": spec} if isinstance(spec, str) else spec, key, ("column", "unit"),
-                       ("scale", "offset"), fail)
+                       ("scale", "offset", "lag"), fail)
             if not e.get("column"):
                 fail(key, "needs a non-empty column = \"...\" (the log's column)")
             if e.get("unit", "") and known(e["unit"]) is None:
                 fail(f"{key} unit", f"{e['unit']!r} is not a unit pwl knows: {', '.join(UNITS)}")
             if e.get("scale", 1.0) == 0.0:
                 fail(f"{key} scale", "must not be 0")
-            channels[name] = (e["column"], e.get("unit", ""), float(e.get("scale", 1.0)), float(e.get("offset", 0.0)))
+            channels[name] = (e["column"], e.get("unit", ""), float(e.get("scale", 1.0)), float(e.get("offset", 0.0)),
+                              float(e.get("lag", 0.0)))
         return cls(channels, time.get("column", ""), time.get("unit", ""), path)
 
     def columns(self) -> dict[str, str]:
@@ -134,9 +140,9 @@ class ChannelMap:
     def apply(self, log: Log) -> Log:
         """The log with the model's channel names and units.
 
-        Each mapped column is renamed (a column may feed several channels) and scaled where the
-        map says, its unit the map's or else the log's own; every other column and truth channel
-        is dropped. The time stays
+        Each mapped column is renamed (a column may feed several channels), scaled and shifted in
+        time where the map says, its unit the map's or else the log's own; every other column and
+        truth channel is dropped. The time stays
         as read (``read_log(path, channel_map=...)`` uses the map's [time] column while
         reading).
 
@@ -158,14 +164,17 @@ class ChannelMap:
             (naming the log, the column and the map's key).
         """
         channels, units = {}, {}
-        for name, (col, unit, scale, offset) in self.channels.items():
+        for name, (col, unit, scale, offset, lag) in self.channels.items():
             if col not in log.channels:
                 raise _missing(log.path, col, f"{self.path}: [channels] {name}", sorted(log.channels))
+            x = log.channels[col]
+            if lag != 0.0:
+                x = np.interp(log.time + lag, log.time, np.asarray(x, dtype=np.float64), left=np.nan, right=np.nan)
             if (scale, offset) != (1.0, 0.0):
-                channels[name] = np.asarray(log.channels[col], dtype=np.float64) * scale + offset
+                channels[name] = np.asarray(x, dtype=np.float64) * scale + offset
                 units[name] = unit
                 continue
-            channels[name] = log.channels[col]
+            channels[name] = x
             units[name] = _declared(log.units.get(col, ""), unit,
                                     f"{log.path}: column {col!r} ({self.path}: [channels] {name})")
         return Log(log.time, channels, units, attrs={**log.attrs, "channel_map": self.path}, path=log.path)

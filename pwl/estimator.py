@@ -11,7 +11,7 @@ import warnings
 
 import numpy as np
 
-from .airdata import air_data_channels, disagree, inlet_pressure
+from .airdata import LAG_SIGMAS, LAG_WARN, air_data_channels, disagree, inlet_pressure, lag, lag_sums
 from .database import GainDatabase
 from .grid import Axis, Grid
 from .h5io import atomic_h5
@@ -384,6 +384,7 @@ class Estimator:
         self._evidence = {}      # channel or ("misfit", sensor) -> kept values (_checked)
         self.low_rate = {}       # channel logged at a lower rate -> its step, s (_hold_low_rate)
         self.air_data = 0        # samples whose scheduling and inlet pressure disagree (_check_air_data)
+        self._lag_sums = np.zeros(6)   # the inlet pressure's lag behind the air data (air_data_lag)
         self.frozen = {}         # input -> [samples frozen while the engine moved, the value] (_check_frozen_inputs)
         self._frozen_spans = []  # their (first, last) times
         self._fit_rows, self._misfit_in = 0, {}   # samples where the model should fit, misfits there
@@ -594,7 +595,8 @@ class Estimator:
     def _check_air_data(self, flags, arrays) -> None:
         """Flag FLAG_AIR_DATA on the started samples, no input held, whose pressure altitude, Mach
         and inlet total pressure disagree (:func:`pwl.airdata.disagree`); count them and keep
-        some (altitude m, Mach, P2 Pa) for the warning."""
+        some (altitude m, Mach, P2 Pa) for the warning; add the agreeing samples to the fit of
+        the inlet pressure's lag (:attr:`air_data_lag`)."""
         if self._air is None:
             return
         ja, jm, ka, kp = self._air
@@ -608,6 +610,17 @@ class Estimator:
             alt = S[rows, ja] * ka
             self._evidence.setdefault("air_data", []).append(np.column_stack(
                 [np.log(p2[rows] / inlet_pressure(alt, S[rows, jm])), alt, S[rows, jm], p2[rows]]))
+        use = (flags & (FLAG_NOT_STARTED | FLAG_HELD_INPUT | FLAG_AIR_DATA)) == 0
+        self._lag_sums += lag_sums(S[:, ja] * ka, S[:, jm], p2, self.db.dt, use)
+
+    @property
+    def air_data_lag(self) -> tuple[float, float]:
+        """(lag s, standard error s) of the inlet pressure (theta/delta's delta channel) behind
+        pressure altitude and Mach over the samples run since the last reset, fitted on how the
+        pressure they give changes (:func:`pwl.airdata.lag`): a channel logged late, by a bus's
+        or a logger's latency; positive: the inlet pressure late or the air data early. (nan,
+        nan) without the three channels or a change of pressure."""
+        return lag(self._lag_sums)
 
     def _check_frozen_inputs(self, flags, t, U, S) -> None:
         """Flag FLAG_HELD_INPUT on the runs where an input repeats one value exactly for the stuck
@@ -685,6 +698,13 @@ class Estimator:
                           f"and Mach {mach:.3g} give {inlet_pressure(alt, mach) / 1e3:.4g} kPa (standard "
                           f"atmosphere): a wrong, frozen or missing altitude or Mach (logged as 0?), or a "
                           f"wrong inlet pressure? Those samples are not trusted", PwlWarning, stacklevel=4)
+        tau, se = self.air_data_lag       # meaningless where the air data disagree (warned above)
+        if abs(tau) >= LAG_WARN and abs(tau) >= LAG_SIGMAS * se and self.air_data < max(n, 1) / 100:
+            sa, sm = (self.pm.schedule_channels[j] for j in self._air[:2])
+            warnings.warn(f"{path}: {self.pm.delta_channel!r} runs {abs(tau):.2g} s {'behind' if tau > 0 else 'ahead of'} "
+                          f"{sa!r} and {sm!r} (fitted on how the pressure they give changes, +-{se:.1g} s): a channel "
+                          "logged late (a bus's or a logger's latency)? The transients read wrong; shift the late "
+                          "channel with the channel map's lag (seconds late)", PwlWarning, stacklevel=4)
         for c, k in self.misfit.items():
             if k >= max(n, 1) / 10 and ("misfit", c) in self._evidence:
                 warnings.warn(f"{path}: sensor {c!r} misfit on {k} of {n} samples ({self._misfit_text(c)}) and was "
@@ -972,7 +992,8 @@ class Estimator:
                "misfit_channels": json.dumps({c: n for c, n in self.misfit.items() if n}),
                "absent_channels": json.dumps(self.absent_sensors(log)),
                "failed_channels": json.dumps(self.failed),
-               "low_rate_channels": json.dumps(self.low_rate)}
+               "low_rate_channels": json.dumps(self.low_rate),
+               "air_data_lag_s": float(self.air_data_lag[0])}
         if "resampled_from" in log.attrs:
             rec["resampled_from_dt"] = float(log.attrs["resampled_from"])
             rec["time_gaps"], rec["longest_gap_s"] = log.attrs["time_gaps"], log.attrs["longest_gap_s"]

@@ -438,7 +438,7 @@ def test_mat_and_dataframe_errors_name_the_column(tmp_path):
     ('[channels]\nWf = { column = "a", unit = 1 }\n', r"m.toml: \[channels\] Wf unit: expected a string"),
     ('[channels]\nWf = { column = "a", unit = "lbs" }\n',
      r"m.toml: \[channels\] Wf unit: 'lbs' is not a unit pwl knows"),
-    ('[channels]\nWf = { col = "a" }\n', r"m.toml: \[channels\] Wf col: unknown key \(allowed: column, unit, scale, offset\)"),
+    ('[channels]\nWf = { col = "a" }\n', r"m.toml: \[channels\] Wf col: unknown key \(allowed: column, unit, scale, offset, lag\)"),
     ('[channels]\nWf = { column = "a", scale = 0 }\n', r"m.toml: \[channels\] Wf scale: must not be 0"),
     ('[channels]\nWf = { column = "a", scale = "2" }\n', r"m.toml: \[channels\] Wf scale: expected a finite number"),
     ('[channels]\nWf = { column = "a", scale = true }\n', r"m.toml: \[channels\] Wf scale: expected a finite"),
