@@ -18,8 +18,11 @@ holds the channel until it comes back or for 64 samples, :func:`_hold_jumps`, wh
 holds only the runs that do come back). A step costs about 1.4 us from Python against 0.5 us per
 sample in batch on the demo database (``pwl bench stream``): numba's call from Python (0.33 us),
 the row's check (0.1 us), the step loop for one row (0.7 us; the kernel's records go by
-reference, :mod:`pwl.byref`), the air-data test (0.1 us). What needs the whole log is a log
-run's only: an input frozen while the engine moves, and the second opinions
+reference, :mod:`pwl.byref`), the air-data test (0.1 us). An input frozen while the engine moves
+(:meth:`pwl.Estimator._check_frozen_inputs`) is found as it goes: from the stuck detector's time
+into the run on, as soon as a scheduling channel has moved, the steps are flagged FLAG_HELD_INPUT
+and make no measurement update (a log run, seeing the whole run, does so from its first sample).
+What needs the whole log is a log run's only: the second opinions
 (``Estimator._second_opinions``: a stream leaves a misfitting sensor out for as long as it
 misfits). Samples that arrive in packets (a data bus, a file being written) run at batch speed through
 ``Estimator.run_arrays``, which continues from the current state. The stream
@@ -42,7 +45,7 @@ from .runtime import (FLAG_AIR_DATA, FLAG_DYN_OUTSIDE, FLAG_HELD_INPUT, FLAG_NOT
 _F8 = np.dtype(np.float64)
 
 
-_StreamState = record("StreamState", ["kern", "cols", "post", "jump", "air"],
+_StreamState = record("StreamState", ["kern", "cols", "post", "jump", "air", "frozen", "still"],
                       "Everything a streamed step needs, by reference (one argument to unbox per call).")
 
 
@@ -76,7 +79,7 @@ def _hold_jumps(S, TH, DE, state, osl, jump, longest):
 def _take_row(st, row):
     """Copy ``row`` into the kernel's one-row inputs, hold its jumps (:func:`_hold_jumps`) and
     screen it (:func:`pwl.runtime.screen`), as a batch run does before its step loop."""
-    kern, cols, post, jump, _ = fields(st)
+    kern, cols, post, jump, _, _, _ = fields(st)
     io, _, _, filt, _, out, _ = fields(kern)
     U, Y, S, TH, DE = io
     iu, iy, i_s, ith, ide, t_std, p_std, osl = cols
@@ -98,24 +101,59 @@ def _take_row(st, row):
 def _report(st):
     """The reporting pass of a batch run after its step loop (:func:`pwl.runtime.report`);
     returns the step's flags."""
-    kern, _, post, _, _ = fields(st)
+    kern, _, post, _, _, _, _ = fields(st)
     flags = fields(kern)[5].flags
     _, _, q_hat, VT, h_ref, h_lo, h_hi, h_hat, h_held = post
     report(q_hat, VT, h_ref, h_lo, h_hi, h_hat, flags, h_held)
     return flags[0]
 
 
+@njit(cache=True, nogil=True)
+def _frozen_inputs(U, S, run, still):
+    """The stream's frozen-input test, causal (:meth:`pwl.Estimator._check_frozen_inputs`): True
+    when an input of ``U`` (1, nu) has repeated one value exactly for ``still[0]`` samples or more
+    (the stuck detector's time) while a scheduling channel of ``S`` (1, ns; NaN: held, no move)
+    moved more than ``still[1 + c]`` within that run. ``run`` (2 + 2 ns, nu): each input's last
+    value, its run's length and the run's minima and maxima of S, updated."""
+    ns = S.shape[1]
+    frozen = False
+    for j in range(U.shape[1]):
+        if U[0, j] == run[0, j]:
+            run[1, j] += 1.0
+        else:
+            run[0, j] = U[0, j]
+            run[1, j] = 1.0
+            for c in range(ns):
+                run[2 + c, j] = np.inf
+                run[2 + ns + c, j] = -np.inf
+        for c in range(ns):
+            if S[0, c] == S[0, c]:
+                run[2 + c, j] = min(run[2 + c, j], S[0, c])
+                run[2 + ns + c, j] = max(run[2 + ns + c, j], S[0, c])
+            if run[1, j] >= still[0] and run[2 + ns + c, j] - run[2 + c, j] > still[1 + c]:
+                frozen = True
+    return frozen
+
+
 @njit(cache=True, nogil=True, _nrt=False)
 def _stream_step(st, row):
-    """One sample ``row`` (the stream's channels) through screen, the step loop, report and the
-    air-data test (:meth:`pwl.Estimator._check_air_data`); the state ``st`` and the kernel's
-    records are passed by reference (:mod:`pwl.byref`)."""
+    """One sample ``row`` (the stream's channels) through screen, the frozen-input test (a frozen
+    input: no measurement update, FLAG_HELD_INPUT), the step loop, report and the air-data test
+    (:meth:`pwl.Estimator._check_air_data`); the state ``st`` and the kernel's records are passed
+    by reference (:mod:`pwl.byref`)."""
     _take_row(st, row)
+    io = fields(fields(st)[0])[0]
+    frozen = _frozen_inputs(io[0], io[2], fields(st)[5], fields(st)[6])
+    if frozen:
+        for j in range(io[1].shape[1]):
+            io[1][0, j] = np.nan
     step_loop(fields(st)[0])
     f = _report(st)
+    if frozen:
+        f |= FLAG_HELD_INPUT
+        fields(fields(st)[0])[5].flags[0] = f
     air = fields(st)[4]       # [altitude column, Mach column, altitude to m, delta to Pa, tolerance]
     if air[0] >= 0.0 and f & (FLAG_NOT_STARTED | FLAG_HELD_INPUT) == 0:
-        io = fields(fields(st)[0])[0]
         S, DE = io[2], io[4]
         if _disagree(S[0, int(air[0])] * air[2], S[0, int(air[1])], DE[0] * air[3], air[4]):
             f |= FLAG_AIR_DATA
@@ -178,7 +216,10 @@ class Stream:
         osl = state_layout(nx, nq, nu, ns, ny)[3]          # the filter state's last scheduling values
         ja, jm, ka, kp = est._air if est._air is not None else (-1, -1, 1.0, 1.0)
         air = np.array([ja, jm, ka, kp * (db.correction.P_std if db.correction else 1.0), AIR_DATA_TOLERANCE])
-        self._st = _StreamState(Kernel(io, *records, work), tuple(index) + th + (osl,), post, self._jump, air)
+        self._run = np.zeros((2 + 2 * ns, nu))
+        self._still = still = np.concatenate([[est._model.stuck_n], SPIKE_FRACTION * span[:ns]])
+        self._st = _StreamState(Kernel(io, *records, work), tuple(index) + th + (osl,), post, self._jump, air,
+                                self._run, still)
         self._stop = FLAG_TRIM_OUTSIDE | FLAG_DYN_OUTSIDE if db.policy == "error" else 0
         self._n = len(self.channels)
         # numba's compiled entry for exactly these argument types (compiled or loaded here, not
@@ -248,6 +289,7 @@ class Stream:
         self._chan_count[:] = 0
         self._jump[0] = 0.0
         self._jump[2] = np.nan
+        self._run[0] = np.nan
 
     def row(self, sample: dict) -> np.ndarray:
         """The row of a sample given as channel name -> value (a number; None, NaN or a channel

@@ -282,3 +282,36 @@ def test_air_data_lag_fit_adds_over_chunks():
     assert lag(parts)[0] == pytest.approx(whole[0], abs=0.01)
     assert whole[0] == pytest.approx(1.0, abs=0.02)
     assert np.isnan(lag(lag_sums(np.full(500, 3000.0), np.full(500, 0.5), np.full(500, 8e4), 0.015))[0])
+
+
+def test_a_stream_finds_a_frozen_input_as_it_goes():
+    """Fuel flow frozen a minute in the descent, streamed: the stream left Nc and T48 out while
+    they misfit and its health was up to 39 points off after the freeze. It now flags the frozen
+    steps held (from the stuck detector's 2 s into the run, once altitude has moved 5 % of its
+    span: within 15 s) and makes no measurement update there, so its health after the freeze is
+    as close to the truth as the log run's (within 0.05 pt of it) and the clean stream flags none."""
+    from pwl.streaming import Stream
+    log = degraded()
+    wf = log.channels["Wf"].copy()
+    k = (log.time >= 600) & (log.time < 660)
+    wf[k] = wf[np.flatnonzero(k)[0]]
+    bad = with_channels(log, Wf=wf)
+    est = Estimator(DB)
+    with pytest.warns(PwlWarning, match="input 'Wf' held"):
+        batch = est.run(bad)
+    stream = Stream(Estimator(DB))
+    rows = np.column_stack([bad.channels[c] for c in stream.channels])
+    flags, h = np.empty(len(rows), dtype=np.int64), np.empty((len(rows), len(stream.h_hat)))
+    for i, r in enumerate(rows):
+        flags[i] = stream.step(r)
+        h[i] = stream.h_hat
+    held = (flags & FLAG_HELD_INPUT) != 0
+    assert not (held & ((batch.flags & FLAG_HELD_INPUT) == 0)).any()
+    assert 600 < log.time[held][0] < 615 and held[k].mean() > 0.7
+    assert ((flags[held] & FLAG_NO_UPDATE) != 0).all()
+    h_true = np.column_stack([log.truth[c] for c in est.db.names["h"]])
+    after = log.time > 680
+    err = lambda hh: np.abs(hh[after] - h_true[after]).max()
+    assert err(h) < err(batch.h_hat) + 5e-4
+    clean = Stream(Estimator(DB))
+    assert not any(clean.step(r) & FLAG_HELD_INPUT for r in np.column_stack([log.channels[c] for c in clean.channels]))
