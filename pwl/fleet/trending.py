@@ -141,7 +141,7 @@ class EngineTrend:
                          f"{d.confidence:.2f} (next: {d.runner_up}); {self.detail(d)}")
             if d.earlier:
                 lines.append(f"  after an earlier fault still present: {', '.join(d.earlier.split())} "
-                             "(class@onset flight)")
+                             "(class@onset flight, and its kind when a level, drift or wear)")
         elif d.kind == "cleared":
             lines.append(f"no fault: the {d.cls} bias found earlier went away at flight {d.onset} (a repair?); "
                          f"{self.detail(d)}")
@@ -154,7 +154,8 @@ class EngineTrend:
                              "fleet: pwl trend ... --fleet FLEET_RESULTS")
         for r in recoveries(self.decisions):
             lines.append(f"RECOVERY (maintenance?): {r.cls} at flight {r.onset}, size {100 * r.magnitude:+.2f} "
-                         f"+- {100 * r.magnitude_std:.2f} %; {self.detail(r)}; diagnosed on a new baseline since")
+                         f"+- {100 * r.magnitude_std:.2f} %; {self.detail(r)}; later changes measured from it"
+                         + (f" (what it left of {', '.join(r.earlier.split())} still reported)" if r.earlier else ""))
         return "\n".join(lines)
 
 

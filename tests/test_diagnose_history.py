@@ -1,0 +1,202 @@
+"""Fleet diagnostics, an engine's history on synthetic deviations (built as tests/test_diagnose.py
+builds them): what was found earlier stays reported after a later fault (a level, a drift, a
+wear), what a repair leaves of a fault is still a fault, an engine wearing every component is
+wear and not a sensor, and a fleet-wide change rolled out over a few flights is named once, not
+alarmed on every engine.
+
+Deviations scatter N(0, sd = 1e-3) per channel; a sensor's bias of 1 unit moves its channel by
+1e-2, so a single flight reads it within 0.1 unit."""
+import numpy as np
+import pytest
+
+from pwl.fleet.diagnose import DiagnosisConfig, diagnose_engine, hypotheses, recoveries
+from test_diagnose import COLUMNS, level_fleet, series, synthetic_signatures, wear_fleet
+from test_fleet_wide import judged
+
+SD = 1e-3
+SIGMA = np.eye(6) * SD ** 2
+CFG = DiagnosisConfig(eps=0.0)
+BANK = {h.name: h for h in hypotheses(COLUMNS)}
+HPT_LOSS = np.array([-0.02, 0.01])          # hpt efficiency -2 %, flow +1 %
+
+
+def change(cls, theta):
+    """The deviations (6,) of hypothesis ``cls`` sized ``theta`` (synthetic signatures)."""
+    return synthetic_signatures()[:, BANK[cls].columns] @ np.asarray(theta)
+
+
+# ---- what was found earlier stays named -----------------------------------------------------------
+def test_a_level_found_first_is_still_named_after_a_later_step():
+    """E03's hpt efficiency 3 % below its fleet's from its first flight (a level fault, as in
+    tests/test_diagnose.py), sensor B +2 from flight 10: from 11 the rows report the sensor's
+    step with the level in ``earlier`` (``hpt@0(level)``); before, the level was no longer named
+    once the step was found. The 19 other engines raise no alarm."""
+    fleet, _, _, Sigma = level_fleet(n=16, off=(3, 2, -0.03))
+    D = fleet[3].D.copy()
+    D[10:] += change("sensor:B", [2.0])
+    fleet[3] = series(D, fleet[3].S[0], "E03")
+    rows, _, _ = judged(fleet, Sigma)
+    assert all(r.kind == "level" and r.cls == "hpt" for r in rows["E03"][3:10])
+    for r in rows["E03"][11:]:
+        assert r.detected and r.cls == "sensor:B" and r.kind == "step" and r.onset == 10, r
+        assert r.earlier == "hpt@0(level)", r
+    assert not any(r.detected for e, rs in rows.items() if e != "E03" for r in rs)
+
+
+def test_a_drift_found_first_is_still_named_and_the_later_step_is_measured_off_it():
+    """Sensor A drifting +0.5 unit a flight from flight 4 (5 sd a flight), an hpt loss from 14:
+    the drift is found from 5 with its onset and rate (within 4 sd); from 14 the rows report
+    the hpt step, sized within 4 sd (the drift a nuisance of the new change), with
+    ``sensor:A@4(drift)`` in ``earlier`` (before: nothing)."""
+    rng = np.random.default_rng(12)
+    t = np.arange(22.0)
+    D = rng.normal(0, SD, (22, 6)) + np.outer(0.5 * np.maximum(0.0, t - 3.0), change("sensor:A", [1.0]))
+    D[14:] += change("hpt", HPT_LOSS)
+    rows = diagnose_engine(series(D, synthetic_signatures()), SIGMA, CFG)
+    for r in rows[5:14]:
+        assert r.detected and r.cls == "sensor:A" and r.kind == "drift" and r.onset == 4, r
+        assert r.bias == pytest.approx(0.5, abs=4 * r.magnitude_std), r
+    for r in rows[14:]:
+        assert r.detected and r.cls == "hpt" and r.kind == "step" and r.onset == 14, r
+        assert r.earlier == "sensor:A@4(drift)", r
+        assert r.magnitude == pytest.approx(-0.02, abs=4 * r.magnitude_std + 1e-3), r
+
+
+def test_wear_found_first_is_still_named_after_a_later_step():
+    """E03 wearing its hpt 3e-3 a flight faster than its fleet (the wear test of
+    tests/test_diagnose.py), sensor B +2 from flight 15: from 16 the rows report the step, with
+    ``hpt@0(wear)`` in ``earlier`` (before: nothing)."""
+    fleet, _, Sigma = wear_fleet(fast=(3, 2, -3e-3))
+    D = fleet[3].D.copy()
+    D[15:] += change("sensor:B", [2.0])
+    fleet[3] = series(D, fleet[3].S[0], "E03")
+    rows, _, _ = judged(fleet, Sigma, DiagnosisConfig(min_step=0.002, min_rate=0.02))
+    assert rows["E03"][14].kind == "wear" and rows["E03"][14].cls == "hpt"
+    for r in rows["E03"][16:]:
+        assert r.detected and r.cls == "sensor:B" and r.kind == "step" and r.onset == 15, r
+        assert r.earlier == "hpt@0(wear)", r
+
+
+# ---- what a repair leaves -------------------------------------------------------------------------
+def repaired(repair_cls, repair, seed=4):
+    """An hpt loss (HPT_LOSS) from flight 6 and a repair (``repair_cls`` sized ``repair``,
+    every efficiency up) from flight 14, 22 flights: the rows."""
+    D = np.random.default_rng(seed).normal(0, SD, (22, 6))
+    D[6:] += change("hpt", HPT_LOSS)
+    D[14:] += change(repair_cls, repair)
+    return diagnose_engine(series(D, synthetic_signatures()), SIGMA, CFG)
+
+
+def test_what_a_repair_leaves_of_a_fault_is_still_reported():
+    """Half the loss repaired (hpt +1 %, -0.5 %), or a fan wash (+2 %, +1 %, the hpt loss all
+    left): the repair's first flight (14) is its recovery row (listed by ``recoveries``); from
+    the next one on the rows report what it left of the hpt fault: hpt, step, onset 6, its
+    efficiency as left (within 4 sd) and its flow of the same sign. Before, the engine went on
+    a new baseline at 14 and every later row was 'baseline' or 'ok'. Repaired in full, it still
+    does: a recovery, the new baseline's flights, no fault."""
+    for repair_cls, repair, left in (("hpt", [0.01, -0.005], [-0.01, 0.005]), ("fan", [0.02, 0.01], HPT_LOSS)):
+        rows = repaired(repair_cls, repair)
+        assert all(r.detected and r.cls == "hpt" and r.onset == 6 for r in rows[7:14])
+        assert rows[14].kind == "recovery" and rows[14].cls == repair_cls and recoveries(rows) == [rows[14]]
+        for r in rows[15:]:
+            assert r.detected and r.cls == "hpt" and r.kind == "step" and r.onset == 6 and r.status == "ok", r
+            eff, flow = [float(kv.split("=")[1]) for kv in r.detail.split()]
+            assert eff == pytest.approx(left[0], abs=4 * r.magnitude_std) and flow * left[1] > 0, r
+    rows = repaired("hpt", -HPT_LOSS)
+    assert rows[14].kind == "recovery"
+    assert [r.status for r in rows[15:18]] == ["baseline", "baseline", "ok"]
+    assert not any(r.detected for r in rows[15:])
+
+
+# ---- an engine wearing every component ------------------------------------------------------------
+WEAR_COLUMNS = ["fan_eff", "fan_flow", "lpc_eff", "lpc_flow", "hpt_eff", "hpt_flow", "sensor:A", "sensor:B",
+                "sensor:C"]
+
+
+def every_component_fleet(m=12, n=24, engines=16, seed=0):
+    """Signatures of three components and three sensors on m channels (the flows' and other
+    channels' entries N(0, 0.5)) where every efficiency loss raises channel 0 (2 per unit, as
+    each component's loss makes the controller burn more fuel) and sensor A biases channel 0
+    (1 unit: 1e-2): A's bias looks like wear of everything. Engines wear every parameter
+    U(-2e-4, 0) a flight; E03 loses every efficiency and flow 1e-3 a flight more (hpt flow
+    +5e-4, as a turbine's), E05 has sensor A drifting +0.4 unit a flight (4 sd). Returns the
+    series and Sigma."""
+    rng = np.random.default_rng(seed)
+    S = np.zeros((m, len(WEAR_COLUMNS)))
+    S[:, :6] = rng.normal(0, 0.5, (m, 6))
+    S[0, [0, 2, 4]] = -2.0
+    S[[0, 1, 2], [6, 7, 8]] = 0.01
+    rates = rng.uniform(-2e-4, 0.0, (engines, 6))
+    rates[3] += -1e-3 * np.array([1, 1, 1, 1, 1, -0.5])
+    t = np.arange(n, dtype=float)
+    out = []
+    for e in range(engines):
+        D = np.outer(t, S[:, :6] @ rates[e]) + rng.normal(0, 0.01, m) + rng.normal(0, SD, (n, m))
+        if e == 5:
+            D += np.outer(0.4 * t, S[:, 6])
+        es = series(D, S, f"E{e:02d}")
+        es.columns, es.level = WEAR_COLUMNS, np.ones((n, len(WEAR_COLUMNS)))     # not test_diagnose's
+        out.append(es)
+    return out, np.eye(m) * SD ** 2
+
+
+def test_an_engine_wearing_every_component_is_wear_not_a_sensor():
+    """E03 (every component wearing faster than its fleet) is found from flight 3 on every
+    flight as wear of components, never as a sensor: no one- or two-component hypothesis of the
+    bank fits that wear, and sensor A, 1 parameter, fitted it as well as any (before: sensor:A
+    drift on flights 3-4). Sensor A's real drift on E05 is still that sensor's drift from flight
+    0, found from flight 4; the 14 other engines raise no alarm."""
+    fleet, Sigma = every_component_fleet()
+    rows, _, _ = judged(fleet, Sigma)
+    worn = [r for r in rows["E03"] if r.detected]
+    assert worn[0].flight == 3 and len(worn) == 21
+    assert all(r.kind == "wear" and "sensor:" not in r.cls and r.onset == 0 for r in worn), worn
+    assert all(r.detected and r.cls == "sensor:A" and r.kind == "drift" and r.onset == 0 for r in rows["E05"][4:])
+    assert not any(r.detected for e, rs in rows.items() if e not in ("E03", "E05") for r in rs)
+
+
+# ---- a fleet-wide change rolled out ---------------------------------------------------------------
+def rollout_fleet(onsets, own_fault=None, n_engines=12, flights=20, seed=5):
+    """``n_engines`` engines x 20 flights wearing U(-2e-4, 0) a flight per health parameter, each
+    offset N(0, 0.01) per channel; engine e changes by ``onsets[e]`` = (class, size, flight), if
+    any; ``own_fault`` (engine, class, size, flight) adds a fault of its own."""
+    rng = np.random.default_rng(seed)
+    S = synthetic_signatures()
+    t = np.arange(flights, dtype=float)
+    out = []
+    for e in range(n_engines):
+        D = np.outer(t, S[:, :4] @ rng.uniform(-2e-4, 0.0, 4)) + rng.normal(0, 0.01, 6) + rng.normal(0, SD, (flights, 6))
+        mine = ([onsets[e]] if e in onsets else []) + ([own_fault[1:]] if own_fault and own_fault[0] == e else [])
+        for cls, size, at in mine:
+            D[at:] += change(cls, size)
+        out.append(series(D, S, engine=f"E{e:02d}"))
+    return out
+
+
+def test_a_fleet_wide_change_rolled_out_over_four_flights_is_named_once_and_not_alarmed():
+    """Sensor B +2 on every engine from its update flight, a quarter of the fleet each flight
+    from 10 to 13 (no flight has more than half of it, the rule of tests/test_fleet_wide.py);
+    E05 also loses fan efficiency (-2 %, -1 %) at 6. One warning names 12 of 12 engines over
+    flights 10-13 as sensor B (+2, within 0.05); no engine alarms for it (before: a sensor:B
+    fault on every engine from its update, and no warning), and E05's own fault stays its
+    finding from 6. Steps of different classes on 7 of 12 engines within those flights
+    (independent faults) are not one: no warning, each engine reports its own."""
+    quarter = {e: ("sensor:B", [2.0], 10 + e // 3) for e in range(12)}
+    fleet = rollout_fleet(quarter, own_fault=(5, "fan", [-0.02, -0.01], 6))
+    rows, wear, said = judged(fleet, np.eye(6) * SD ** 2)
+    assert len(said) == 1 and said[0].startswith("12 of 12 engines changed alike over flights 10-13 (sensor:B=+"), said
+    (c,) = wear.common
+    assert c.rollout and c.cls == "sensor:B" and c.onsets == {f"E{e:02d}": 10 + e // 3 for e in range(12)}
+    assert float(c.detail.split("=")[1]) == pytest.approx(2.0, abs=0.05)
+    for e, rs in rows.items():
+        if e != "E05":
+            assert not any(r.detected for r in rs), e
+    assert all(r.detected and r.cls == "fan" and r.onset == 6 for r in rows["E05"][7:])
+
+    mixed = {e: (cls, size, 10 + e % 4) for e, (cls, size) in
+             enumerate([("sensor:A", [2.0]), ("sensor:B", [2.0]), ("sensor:C", [-2.0]), ("fan", [-0.02, -0.01]),
+                        ("hpt", HPT_LOSS), ("sensor:A", [-2.0]), ("sensor:B", [-2.0])])}
+    rows, wear, said = judged(rollout_fleet(mixed), np.eye(6) * SD ** 2)
+    assert said == [] and wear.common == []
+    for e, (cls, _, at) in mixed.items():
+        assert all(r.detected and r.cls == cls and r.onset == at for r in rows[f"E{e:02d}"][at + 1:]), e
