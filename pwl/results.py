@@ -416,7 +416,8 @@ def file_summary(f) -> dict:
     engine, flight_index (None when the log had none), flight_time, every count of
     :data:`COUNT_KEYS`, ``h_hat.<parameter>`` of the last steady snapshot (fractions; NaN without
     a snapshot) and ``rms.<sensor>`` (residual RMS over every sample, sensor units; absent in
-    version-1 files)."""
+    version-1 files) and ``air_data_lag_s`` (how late the inlet pressure ran behind the air
+    data: :attr:`pwl.Estimator.air_data_lag`; NaN when not measured)."""
     a = f.attrs
     fi = str(a.get("flight_index", ""))
     row = {"engine": attr_str(f, "engine") or "", "flight_index": int(fi) if fi.lstrip("-").isdigit() else None,
@@ -429,4 +430,5 @@ def file_summary(f) -> dict:
         row.update({f"h_hat.{n}": float(v) for n, v in zip(read_strings(g["names_h_hat"]), last)})
     sensors = [s.decode() if isinstance(s, bytes) else str(s) for s in a.get("residual_sensors", [])]
     row.update({f"rms.{s}": float(v) for s, v in zip(sensors, a.get("residual_rms", []))})
+    row["air_data_lag_s"] = float(a.get("air_data_lag_s", np.nan))
     return row
