@@ -877,19 +877,29 @@ class Estimator:
     #: run again without it, from its first sample (swapped P50 and P15: 35 %; the demo flights,
     #: engine-off segments, a T48 step of 15 K in flight: 0)
     FAILED_SHARE = 0.1
+    #: this many sensors failing a log at once (scheduling sensors that misfit as often counted)
+    #: are named as a likely wrong input or database, not as failed sensors
+    MANY_FAILED = 3
 
     def _failed_sensors(self, path) -> list[str]:
         """After a run: the sensors that failed for the log (:attr:`FAILED_SHARE`; not a
         scheduling channel, which the filter cannot run without), added to :attr:`failed` for a
         run again, and a warning naming them with their typical values; [] if none."""
         n = self._fit_rows
-        failed = [c for c in self.db.names["y"] if c not in self.pm.schedule_channels and c not in self.failed
-                  and n >= 100 and self._misfit_in.get(c, 0) >= self.FAILED_SHARE * n]
+        off = [c for c in self.db.names["y"] if c not in self.failed and n >= 100
+               and self._misfit_in.get(c, 0) >= self.FAILED_SHARE * n]
+        failed = [c for c in off if c not in self.pm.schedule_channels]
         if failed:
+            # many at once (a scheduling sensor among them: the operating point itself) are rather
+            # the model that does not fit: fuel flow logged 30 % high on the degraded demo flight
+            # failed Ps30, T48 and P50, with Nf misfitting on 90 % of the samples
+            why = (f" {len(off)} sensors at once ({', '.join(off)}): rather an input that is wrong (a meter "
+                   "mis-scaled, a unit mistake) or a database made for another engine?" if len(off) >= self.MANY_FAILED
+                   else "")
             warnings.warn(f"{path}: " + "; ".join(
                 f"sensor {c!r} misfit on {self._misfit_in[c] / n:.0%} of the samples where the model should fit "
                 f"({self._misfit_text(c)})" for c in failed) + ": a failed, swapped or mis-scaled sensor? "
-                f"Estimated again without {'it' if len(failed) == 1 else 'them'}", PwlWarning, stacklevel=3)
+                f"Estimated again without {'it' if len(failed) == 1 else 'them'}." + why, PwlWarning, stacklevel=3)
             self.failed = self.failed + failed
         return failed
 

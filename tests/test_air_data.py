@@ -333,3 +333,18 @@ def test_the_fleet_summary_gives_each_flights_inlet_pressure_lag(tmp_path):
     rows = {os.path.basename(r["log"]): r for r in read_summary(tmp_path / "out" / out)}
     assert float(rows["late.h5"]["air_data_lag_s"]) == pytest.approx(1.2, abs=0.02)
     assert abs(float(rows["on_time.h5"]["air_data_lag_s"])) < 0.01
+
+
+def test_many_sensors_failing_at_once_point_at_an_input_or_the_database():
+    """Fuel flow logged 30 % high (a mis-scaled meter, or a log of another engine): Ps30, T48 and
+    P50 fail for the log (and Nf, a scheduling sensor, misfits on most samples). Naming them as
+    three failed sensors sent the user to the wrong place: the warning now says so many at once
+    point at an input or the database. Two swapped sensors (P50, P15) do not get that hint."""
+    log = degraded()
+    with pytest.warns(PwlWarning, match=r"3 sensors at once \(Ps30, T48, P50\): rather an input that is wrong"):
+        Estimator(DB).run(with_channels(log, Wf=log.channels["Wf"] * 1.3))
+    with warnings.catch_warnings(record=True) as got:
+        warnings.simplefilter("always")
+        Estimator(DB).run(with_channels(log, P50=log.channels["P15"], P15=log.channels["P50"]))
+    said = " ".join(str(w.message) for w in got)
+    assert "Estimated again without them" in said and "at once" not in said
