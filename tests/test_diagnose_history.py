@@ -200,3 +200,29 @@ def test_a_fleet_wide_change_rolled_out_over_four_flights_is_named_once_and_not_
     assert said == [] and wear.common == []
     for e, (cls, _, at) in mixed.items():
         assert all(r.detected and r.cls == cls and r.onset == at for r in rows[f"E{e:02d}"][at + 1:]), e
+
+
+# ---- a loss from the second flight ----------------------------------------------------------------
+def test_a_rising_drift_is_never_chosen_over_a_step_that_fits_as_well():
+    """An hpt loss from flight 1 seen on flights 0-3: with the engine's wear line as a nuisance, a
+    step at 1 and a ramp from 2 span the same space (ramp = t - 1 + 1 - step), so both fit
+    exactly and the change point was the one met first; a ramp then read as a drift of the hpt
+    efficiency rising 2 %/flight, detected as a fault (probe fleet P2 ESN004, an LPC loss from 1:
+    "lpc drift +1.53 %/flight" on two flights). Components do not get better by themselves, a
+    flight at a time: the step is chosen, from flight 1, sized as the loss."""
+    from pwl.fleet.diagnose import Decision, _decide, _fit_changes
+    t = np.arange(4.0)
+    D = np.zeros((4, 6))
+    D[1:] += change("hpt", HPT_LOSS)
+    S = synthetic_signatures()
+    bank = list(BANK.values())
+    fit = lambda shape: _fit_changes(D, np.eye(6) / SD, S, t, t[1:], shape, bank, 0.0, trend=True)
+    ramp, step = fit("ramp"), fit("step")
+    gain = lambda fits, tau: next(f[5] for f in fits if f[0] == tau)
+    assert gain(ramp, 2.0) == pytest.approx(gain(step, 1.0), rel=1e-12)
+    # the ramp ahead by rounding, as on P2 ESN004's flights 3 and 5
+    step = [f[:5] + (f[5] * (1 - 1e-12),) for f in step]
+    dec = Decision("E00", 3, "flight_003", "", "ok")
+    assert _decide(dec, [("step", step), ("ramp", ramp)], bank, S, t, series(D, S), np.ones(4, bool), 1, CFG)
+    assert (dec.cls, dec.kind, dec.onset) == ("hpt", "step", 1), dec
+    assert dec.magnitude == pytest.approx(-0.02, rel=1e-6)

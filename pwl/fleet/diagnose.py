@@ -714,9 +714,17 @@ def _decide(dec, stage, bank, S, t, es, rowsok, n_tests, cfg) -> bool:
             by_point.setdefault((shape, f[0]), []).append(f)
     if not by_point:
         return False
-    shape, tau = max(by_point, key=lambda k: by_point[k][0][5])
-    here = by_point[(shape, tau)]
-    _, hi, T, th, cov, _ = max(here, key=lambda f: f[2] - bank[f[1]].cost(cfg))
+    # a drift whose efficiencies all rise is no engine's: components do not get better by
+    # themselves, a flight at a time (a loss from the second flight fitted a step at 1 or, as
+    # well with the wear line, an LPC "drift" of +1.5 %/flight from 2); the next change point
+    for shape, tau in sorted(by_point, key=lambda k: -by_point[k][0][5]):
+        here = by_point[(shape, tau)]
+        _, hi, T, th, cov, _ = max(here, key=lambda f: f[2] - bank[f[1]].cost(cfg))
+        effs = [v for c, v in zip(bank[hi].columns, th) if es.columns[c].endswith("_eff")]
+        if not (shape == "ramp" and effs and min(effs) > 0):
+            break
+    else:
+        return False
     p = float(stats.chi2.sf(T, len(bank[hi].columns))) * n_tests
     h = bank[hi]
     size = float(np.linalg.norm(S[:, h.columns] @ th))   # fitted change (rate for ramps), relative
@@ -729,7 +737,6 @@ def _decide(dec, stage, bank, S, t, es, rowsok, n_tests, cfg) -> bool:
         big = size >= floor and size * (t[-1] - tau + 1) >= cfg.min_step
     else:
         big = size >= cfg.min_step
-    effs = [v for c, v in zip(h.columns, th) if es.columns[c].endswith("_eff")]
     if not (p < cfg.alpha and big) or (shape in ("wear", "level") and effs and min(effs) > 0):
         return False
     # confidence among the bank at the chosen change point and shape
