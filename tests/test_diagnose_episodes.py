@@ -65,14 +65,17 @@ def test_a_bias_on_every_other_flight_stays_intermittent():
 def test_a_sensor_bias_cleared_after_another_fault_is_judged_without_it():
     """Sensor B +2 on flights 6-15, a fan loss (-2 %, -1 %) from flight 10: from 16 the bias is
     cleared (sized +2 within 0.3, the flights before 6 its baseline, the fan loss fitted with its
-    signatures), the fan loss named in ``earlier``."""
+    signatures), the fan loss named in ``earlier``; from 17 on the rows report the fan loss that
+    stands (tests/test_diagnose_history.py)."""
     D, S = biased(24, list(range(6, 16)), sensor=5, seed=3)
     D[10:] += S[:, BANK["fan"].columns] @ np.array([-0.02, -0.01])
     rows = diagnose_engine(series(D, S), SIGMA, CFG)
     assert all(r.detected and r.cls == "fan" and r.onset == 10 for r in rows[10:16])
-    for r in rows[16:]:
-        assert not r.detected and r.kind == "cleared" and r.cls == "sensor:B" and r.onset == 16, r
-        assert r.bias == pytest.approx(2.0, abs=0.3) and r.earlier == "fan@10", r
+    r = rows[16]
+    assert not r.detected and r.kind == "cleared" and r.cls == "sensor:B" and r.onset == 16, r
+    assert r.bias == pytest.approx(2.0, abs=0.3) and r.earlier == "fan@10", r
+    for r in rows[17:]:
+        assert r.detected and r.cls == "fan" and r.kind == "step" and r.onset == 10 and r.earlier == "", r
 
 
 def test_own_scatter_leaves_out_the_sensors_seen_and_is_bounded():

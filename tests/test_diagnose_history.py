@@ -226,3 +226,20 @@ def test_a_rising_drift_is_never_chosen_over_a_step_that_fits_as_well():
     assert _decide(dec, [("step", step), ("ramp", ramp)], bank, S, t, series(D, S), np.ones(4, bool), 1, CFG)
     assert (dec.cls, dec.kind, dec.onset) == ("hpt", "step", 1), dec
     assert dec.magnitude == pytest.approx(-0.02, rel=1e-6)
+
+
+def test_a_fault_standing_when_a_later_sensor_bias_goes_away_is_still_the_rows_fault():
+    """An hpt loss from flight 6, then sensor A +2 on flight 14 only: flights 15 on said the A
+    bias had cleared, ``detected`` 0, the hpt loss only in ``earlier`` (probe fleet P7 ESN003:
+    an HPC loss and a fuel-flow reading off for one flight). Flight 15 says the bias cleared
+    (as a repair's first flight says the recovery); from 16 they report the hpt step from 6,
+    detected, sized within 4 sd."""
+    rng = np.random.default_rng(3)
+    D = rng.normal(0, SD, (22, 6))
+    D[6:] += change("hpt", HPT_LOSS)
+    D[14] += change("sensor:A", [2.0])
+    rows = diagnose_engine(series(D, synthetic_signatures()), SIGMA, CFG)
+    assert rows[14].detected and rows[14].cls == "sensor:A" and rows[15].kind == "cleared"
+    for r in rows[16:]:
+        assert r.detected and r.cls == "hpt" and r.kind == "step" and r.onset == 6 and r.flight == rows.index(r), r
+        assert r.magnitude == pytest.approx(-0.02, abs=4 * r.magnitude_std + 1e-3), r

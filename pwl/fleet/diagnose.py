@@ -1036,8 +1036,9 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
         if finding[len(rows)] is not None and finding[len(rows)][2] == "step" and dec.cls.startswith("sensor:"):
             seen.append((dec.onset, dec.cls))
         _episodes(dec, known, seen, es, rowsok, D, Wt, Sbar_all, t, bank, cfg)
-        dec.earlier = _earlier(dec, [f for f in found if f.onset >= number[first]])
-        rows.append(dec)
+        mine = [f for f in found if f.onset >= number[first]]
+        dec.earlier = _earlier(dec, mine)
+        rows.append(_standing(dec, mine) if dec.status == "cleared" and dec.earlier and dec.onset < dec.flight else dec)
     if own[0] > OWN_WARN:
         warnings.warn(PwlWarning(f"engine {es.engine}: judged against its own flight-to-flight scatter, "
                                  f"{own[0]:.3g} x the fleet's (variance; at most {OWN_MAX:g}) at flight {own[1]}: "
@@ -1100,6 +1101,20 @@ def _earlier(dec: Decision, found: list[Decision]) -> str:
     return " ".join(f"{f.cls}@{f.onset:g}" + (f"({f.kind})" if f.kind in ("level", "drift", "wear") else "")
                     for f in found if f.onset < dec.onset and f.kind != "recovery"
                     and not (episode and f.cls == dec.cls) and not _same_trend(f, dec))
+
+
+def _standing(dec: Decision, found: list[Decision]) -> Decision:
+    """The row of a flight after the one where its own change went away (``dec``: a sensor bias
+    ``cleared``, shown on its first flight as a repair's recovery is) while a fault confirmed
+    before it stands (``found``): that fault as last sized, on this flight's row, with what else
+    stands in ``earlier``. Such rows said ``detected`` 0 with the fault only in ``earlier``
+    (probe fleet P7 ESN003: an HPC loss from flight 6 and fuel flow read 2 % low on flight 14
+    only -> flights 15-23 'cleared', not detected, the engine off the list of engines with a
+    fault)."""
+    row = copy([f for f in found if f.kind != "recovery" and f.cls != dec.cls and f.onset < dec.onset][-1])
+    row.flight, row.label, row.source, row.missing, row.status = dec.flight, dec.label, dec.source, dec.missing, "ok"
+    row.earlier = _earlier(row, [f for f in found if f.cls != dec.cls])
+    return row
 
 
 def _remaining(dec, faults, known, D, Wt, S, t, bank, cfg, n_tests, es) -> list:
