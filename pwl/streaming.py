@@ -108,7 +108,7 @@ def _report(st):
     return flags[0]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _frozen_inputs(U, S, run, still):
     """The stream's frozen-input test, causal (:meth:`pwl.Estimator._check_frozen_inputs`): True
     when an input of ``U`` (1, nu) has repeated one value exactly for ``still[0]`` samples or more
