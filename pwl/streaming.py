@@ -217,7 +217,7 @@ class Stream:
         ja, jm, ka, kp = est._air if est._air is not None else (-1, -1, 1.0, 1.0)
         air = np.array([ja, jm, ka, kp * (db.correction.P_std if db.correction else 1.0), AIR_DATA_TOLERANCE])
         self._run = np.zeros((2 + 2 * ns, nu))
-        self._still = still = np.concatenate([[est._model.stuck_n], SPIKE_FRACTION * span[:ns]])
+        still = np.concatenate([[est._model.stuck_n], SPIKE_FRACTION * span[:ns]])
         self._st = _StreamState(Kernel(io, *records, work), tuple(index) + th + (osl,), post, self._jump, air,
                                 self._run, still)
         self._stop = FLAG_TRIM_OUTSIDE | FLAG_DYN_OUTSIDE if db.policy == "error" else 0

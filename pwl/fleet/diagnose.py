@@ -382,7 +382,7 @@ class FleetNorm:
 def _fleet_norm(series: list[EngineSeries], Sigma: np.ndarray, cfg: "DiagnosisConfig", per_engine) -> FleetNorm | None:
     """The median and 1.4826 x median absolute deviation over the engines with at least
     ``cfg.wear_flights`` complete flights (None with fewer than ``cfg.wear_engines``) of
-    ``per_engine(D, t)`` (a vector of deviations from an engine's complete flights D at flight
+    ``per_engine(D, t, engine)`` (a vector of deviations from an engine's complete flights D at flight
     numbers t) read as health-parameter values (whitened least squares on the mean signatures of
     its component columns), and of what they leave per channel. Robust to the engines with a
     fault, up to half of them."""
@@ -396,7 +396,7 @@ def _fleet_norm(series: list[EngineSeries], Sigma: np.ndarray, cfg: "DiagnosisCo
         if ok.sum() < cfg.wear_flights:
             continue
         Sh = np.nanmean(es.S[ok], axis=0)[:, cols]
-        v = per_engine(es.D[ok], flight_numbers(es)[ok])
+        v = per_engine(es.D[ok], flight_numbers(es)[ok], es.engine)
         vals.append(np.linalg.lstsq(Wt @ Sh, Wt @ v, rcond=None)[0])
         rest.append(v - Sh @ vals[-1])
     if len(vals) < cfg.wear_engines:
@@ -409,7 +409,7 @@ def _fleet_norm(series: list[EngineSeries], Sigma: np.ndarray, cfg: "DiagnosisCo
 
 
 def wear_reference(series: list[EngineSeries], Sigma: np.ndarray,
-                   cfg: DiagnosisConfig = DiagnosisConfig()) -> FleetNorm | None:
+                   cfg: DiagnosisConfig = DiagnosisConfig(), steps: dict | None = None) -> FleetNorm | None:
     """The normal wear of a fleet (:func:`_fleet_norm`): each engine's deviation rate
     (least-squares slope per channel over its flight numbers, its level and its own steps,
     :func:`engine_steps`, as nuisances) as health-parameter rates. Like Sigma it uses every
@@ -418,12 +418,13 @@ def wear_reference(series: list[EngineSeries], Sigma: np.ndarray,
     median over the engines tolerated only while fewer than half of them changed at once: a T48
     recalibration from flight 10 of 20 on 10 of 12 engines became every engine's "wear" (lpt_eff
     -0.26 %/flight; truth at most 0.01) and, subtracted from each engine's flights, made its
-    flights before it a sensor drift from flight 0."""
+    flights before it a sensor drift from flight 0. ``steps``: engine -> its steps, when
+    already found (:func:`fleet_steps`)."""
     Wt = np.linalg.inv(np.linalg.cholesky(Sigma))
 
-    def slope(D, t):
-        steps = engine_steps(D, Wt, t, cfg)
-        X = np.column_stack([np.ones_like(t), t - t.mean()] + [(t >= s).astype(float) for s in steps])
+    def slope(D, t, engine):
+        own = steps[engine] if steps is not None else engine_steps(D, Wt, t, cfg)
+        X = np.column_stack([np.ones_like(t), t - t.mean()] + [_shape(t, s, "step") for s in own])
         return np.linalg.lstsq(X, D, rcond=None)[0][1]
     return _fleet_norm(series, Sigma, cfg, slope)
 
@@ -501,38 +502,52 @@ class CommonStep:
                 "rows report it from that flight")
 
 
+def fleet_steps(series: list[EngineSeries], Sigma: np.ndarray, cfg: DiagnosisConfig = DiagnosisConfig()) -> dict:
+    """engine -> the flight numbers of its steps (:func:`engine_steps`) over its complete
+    flights, for every engine with at least ``cfg.wear_flights`` of them: found once for the
+    fleet's normal wear and its common steps."""
+    Wt = np.linalg.inv(np.linalg.cholesky(Sigma))
+    out = {}
+    for es in series:
+        ok = np.all(np.isfinite(es.D), axis=1)
+        if ok.sum() >= cfg.wear_flights:
+            out[es.engine] = engine_steps(es.D[ok], Wt, flight_numbers(es)[ok], cfg)
+    return out
+
+
 def common_steps(series: list[EngineSeries], Sigma: np.ndarray,
-                 cfg: DiagnosisConfig = DiagnosisConfig()) -> list[CommonStep]:
+                 cfg: DiagnosisConfig = DiagnosisConfig(), steps: dict | None = None) -> list[CommonStep]:
     """Changes most of the fleet shows (a fleet-wide sensor recalibration, a software or fuel
     change): of the engines with at least ``cfg.wear_flights`` complete flights (none with fewer
     than ``cfg.wear_engines``), more than half have a step (:func:`engine_steps`) at the same
     flight number, or, rolled out, a step isolated alike (the same hypothesis) within
     ``cfg.rollout`` consecutive flights (:func:`_rollouts`). Every step is isolated on its
     engine (the bank's hypothesis with the largest T - cost, the engine's other steps as
-    nuisances); the class most of them share is named with its median fit."""
+    nuisances); the class most of them share is named with its median fit. ``steps``: as
+    :func:`fleet_steps`, when already found."""
     eng = []
     Wt = np.linalg.inv(np.linalg.cholesky(Sigma))
+    steps = fleet_steps(series, Sigma, cfg) if steps is None else steps
     for es in series:
         ok = np.all(np.isfinite(es.D), axis=1)
-        if ok.sum() >= cfg.wear_flights:
-            D, t = es.D[ok], flight_numbers(es)[ok]
-            eng.append((es, D, t, np.nanmean(es.S[ok], axis=0), engine_steps(D, Wt, t, cfg)))
+        if es.engine in steps:
+            eng.append((es, es.D[ok], flight_numbers(es)[ok], np.nanmean(es.S[ok], axis=0), steps[es.engine]))
     if len(eng) < cfg.wear_engines:
         return []
     bank = hypotheses(series[0].columns, cfg.pairs)
-    steps = []                                  # (engine, flight number, hypothesis index, fit)
+    isolated = []                                # (engine, flight number, hypothesis index, fit)
     for es, D, t, S, taus in eng:
         for tau in taus:
             got = _fit_changes(D, Wt, S, t, [tau], "step", bank, cfg.eps, trend=cfg.wear,
                                steps=[s for s in taus if s != tau])
             _, hi, _, th, _, _ = max(got, key=lambda f: f[2] - bank[f[1]].cost(cfg))
-            steps.append((es.engine, tau, hi, th))
+            isolated.append((es.engine, tau, hi, th))
     at: dict = {}
-    for s in steps:
+    for s in isolated:
         at.setdefault(s[1], []).append(s)
     common = partial(_common, eligible=len(eng), bank=bank, columns=series[0].columns)
     found = [common(at[tau]) for tau in sorted(at) if 2 * len(at[tau]) > len(eng)]
-    rest = [s for s in steps if 2 * len(at[s[1]]) <= len(eng)]
+    rest = [s for s in isolated if 2 * len(at[s[1]]) <= len(eng)]
     return found + [common(w, rollout=True) for w in _rollouts(rest, len(eng), cfg.rollout)]
 
 
@@ -581,10 +596,11 @@ def fleet_norms(series: list[EngineSeries], Sigma: np.ndarray, cfg: DiagnosisCon
     ``common``) and named once in a :class:`PwlWarning` (``units``: for its size, as
     :func:`pwl.fleet.trending.detail_units`). The level (the engines' first n_base + 1 flights)
     holds such a step only when it is among those flights, and then on every engine alike."""
-    common = common_steps(series, Sigma, cfg)
+    steps = fleet_steps(series, Sigma, cfg)
+    common = common_steps(series, Sigma, cfg, steps)
     for c in common:
         warnings.warn(PwlWarning(c.describe(units)), stacklevel=2)
-    wear = wear_reference(series, Sigma, cfg) if cfg.wear else None
+    wear = wear_reference(series, Sigma, cfg, steps) if cfg.wear else None
     if wear is not None:
         wear.common = common
     return wear, level_reference(series, Sigma, cfg)
@@ -596,7 +612,7 @@ def level_reference(series: list[EngineSeries], Sigma: np.ndarray,
     engine's mean deviation over its first n_base + 1 complete flights (its baseline), as
     health-parameter levels. An engine whose baseline is off it (a fault before its first
     flight, an engine delivered or repaired with a defect) has no step of its own to find."""
-    return _fleet_norm(series, Sigma, cfg, lambda D, t: D[: cfg.n_base + 1].mean(axis=0))
+    return _fleet_norm(series, Sigma, cfg, lambda D, t, engine: D[: cfg.n_base + 1].mean(axis=0))
 
 
 @dataclass
