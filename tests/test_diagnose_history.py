@@ -243,3 +243,62 @@ def test_a_fault_standing_when_a_later_sensor_bias_goes_away_is_still_the_rows_f
     for r in rows[16:]:
         assert r.detected and r.cls == "hpt" and r.kind == "step" and r.onset == 6 and r.flight == rows.index(r), r
         assert r.magnitude == pytest.approx(-0.02, abs=4 * r.magnitude_std + 1e-3), r
+
+
+# ---- a sensor calibrated off from the first flight ------------------------------------------------
+def test_a_sensor_calibrated_off_from_the_first_flight_is_a_level_in_its_raw_unit():
+    """E03's sensor A reads 3 units high from its first flight (30 sd), in its raw unit: its
+    channel's level moves +-10 % from flight to flight with the operating point (as the trims of
+    a real fleet do), so the offset's relative deviation (the signature 1e-2 per unit at the mean
+    level, times mean level / level) moves by +-0.3 % (3 sd) with it. The rows from n_base on
+    report sensor A, kind level, onset 0, its bias 3 within 0.2 (the fleet's calibration scatter,
+    2e-3 = 0.2 unit, is what it is measured against); before,
+    read against the engine's relative level, the moving part was steps, drifts and
+    intermittent biases of sensor A of either sign on most flights. A later HPT loss (flight 12)
+    is still found, with the level in ``earlier``; the 15 other engines raise no alarm."""
+    rng = np.random.default_rng(8)
+    n, S = 20, synthetic_signatures()
+    t = np.arange(n, dtype=float)
+    fleet = []
+    for e in range(16):
+        ratio = 1.0 / (1.0 + 0.1 * np.sin(0.9 * t + e))          # mean level / level, per flight
+        Sk = np.repeat(S[None], n, axis=0)
+        Sk[:, :3, 4:] *= ratio[:, None, None]
+        D = np.outer(t, S[:, :4] @ rng.uniform(-2e-4, 0.0, 4)) + rng.normal(0, 2e-3, 6) + rng.normal(0, SD, (n, 6))
+        if e == 3:
+            D += 3.0 * Sk[:, :, 4]
+            D[12:] += change("hpt", HPT_LOSS)
+        es = series(D, S, f"E{e:02d}")
+        es.S = Sk
+        fleet.append(es)
+    rows, _, _ = judged(fleet, SIGMA)
+    for r in rows["E03"][3:12]:
+        assert r.detected and r.cls == "sensor:A" and r.kind == "level" and r.onset == 0, r
+        assert r.bias == pytest.approx(3.0, abs=0.2), r
+    for r in rows["E03"][13:]:
+        assert r.detected and r.cls == "hpt" and r.kind == "step" and r.onset == 12, r
+        assert r.earlier == "sensor:A@0(level)", r
+    assert not any(r.detected for e, rs in rows.items() if e != "E03" for r in rs)
+
+
+# ---- one component's loss beyond the linear range -------------------------------------------------
+@pytest.mark.parametrize("other,expect", [([0.004, 0.0], "fan"), ([0.02, 0.0], "fan+hpt")])
+def test_a_loss_with_a_little_of_another_component_rising_is_that_component(other, expect):
+    """A fan loss of 3 % (efficiency and flow) from flight 10 whose deviations also hold a little of
+    an hpt efficiency *rise*, as the curvature of a large loss does (the signatures are linear),
+    on an engine whose bank holds the two components and their pair (no sensor, so that nothing
+    else takes up what the pair is denied): a share of the fitted change of 0.06 (hpt +0.4 %) is
+    the fan's loss, reported as fan; at 0.3 (hpt +2 %, as when an engine is given another
+    engine's health) it stays the pair the data hold. Before, both were 'fan+hpt' (the pair's
+    gain over fan alone pays its cost either way)."""
+    from pwl.fleet.diagnose import CURVATURE_SHARE
+    S = synthetic_signatures()[:, :4]
+    D = np.random.default_rng(21).normal(0, SD, (20, 6))
+    D[10:] += S[:, :2] @ [-0.03, -0.03] + S[:, 2:] @ other
+    share = np.linalg.norm(S[:, 2:] @ other) / np.linalg.norm(S[:, :2] @ [-0.03, -0.03])
+    assert (share < CURVATURE_SHARE) == (expect == "fan"), share
+    es = series(D, synthetic_signatures())
+    es.columns, es.S, es.level = COLUMNS[:4], np.repeat(S[None], 20, axis=0), np.ones((20, 4))
+    rows = diagnose_engine(es, SIGMA, CFG)
+    for r in rows[10:]:
+        assert r.detected and r.cls == expect and r.kind == "step" and r.onset == 10, r

@@ -45,6 +45,11 @@ when nothing changed.
   measured from the recovered level, unless it left part of a fault found before it (a
   partial repair, a wash of another component: :func:`_remaining`), which later rows still
   report. A sensor bias that came with it is a fault, never maintenance (:func:`_sensor_part`).
+- **Level**: in a fleet, an engine whose first flights are off the fleet's normal baseline
+  (:func:`level_reference`) and which changed no further is kind ``level``, onset its first
+  flight: a component delivered with a defect, or a sensor calibrated off. A sensor's offset is
+  constant in its raw unit, so its relative deviation moves with each flight's operating point;
+  that moving part is taken out of every test of the engine (:func:`_calibration`).
 - **History**: a finding confirmed on two flights (a step, a drift, a level, a wear) stays
   named in ``earlier`` on the rows of a later fault, and a step or drift is a nuisance of the
   tests for it.
@@ -727,7 +732,8 @@ def _decide(dec, stage, bank, S, t, es, rowsok, n_tests, cfg) -> bool:
     by_point = {}
     for shape, fits in stage:
         for f in fits:
-            by_point.setdefault((shape, f[0]), []).append(f)
+            if not _curvature(bank[f[1]], f[3], S, es.columns):
+                by_point.setdefault((shape, f[0]), []).append(f)
     if not by_point:
         return False
     # a drift whose efficiencies all rise is no engine's: components do not get better by
@@ -769,6 +775,33 @@ def _decide(dec, stage, bank, S, t, es, rowsok, n_tests, cfg) -> bool:
     dec.runner_up = bank[here[order[1]][1]].name if len(order) > 1 else ""
     _size(dec, es, rowsok, h.columns, th, cov, 0 if h.name.startswith("sensor:") else None)
     return True
+
+
+#: the largest share of a two-component fit the component whose efficiency rises may hold (its
+#: part of the fitted change over the other's) for the pair to be a single fault's curvature
+#: (:func:`_curvature`): LPC losses of 3-5 % read 'lpc+hpc' with shares 0.11-0.15 (seed-1, seed-3
+#: benchmarks); an engine given another's health (a swap) makes mixed pairs of shares 0.43-0.88
+CURVATURE_SHARE = 0.25
+
+
+def _curvature(h: Hypothesis, th: np.ndarray, S: np.ndarray, columns: list[str]) -> bool:
+    """Whether ``h``, two components fitted ``th`` (signatures S (m, ncol)), is one component's
+    loss beyond the signatures' linear range with the other taking up the curvature: one
+    efficiency falls, the other rises (neither a combined fault nor maintenance), and the rising
+    component's part of the fitted change is at most CURVATURE_SHARE of the other's. An LPC loss
+    of 3-5 % read 'lpc+hpc' (hpc efficiency +0.2 %) on 9 flights of the seed-1 benchmark and 8
+    of a seed-3 fleet; the single component is reported."""
+    if "+" not in h.name or "sensor:" in h.name:
+        return False
+    parts: dict[str, list[int]] = {}
+    for i, c in enumerate(h.columns):
+        parts.setdefault(columns[c].rsplit("_", 1)[0], []).append(i)
+    eff = {k: next((th[i] for i in ix if columns[h.columns[i]].endswith("_eff")), 0.0) for k, ix in parts.items()}
+    if len(parts) != 2 or min(eff.values()) >= 0 or max(eff.values()) <= 0:
+        return False
+    size = {k: float(np.linalg.norm(S[:, [h.columns[i] for i in ix]] @ th[ix])) for k, ix in parts.items()}
+    up, down = max(eff, key=eff.get), min(eff, key=eff.get)
+    return size[up] <= CURVATURE_SHARE * size[down]
 
 
 def _size(dec, es, rowsok, cols, th, cov, sensor=None) -> None:
@@ -908,11 +941,50 @@ def _stages(D, Wt, S, t, bank, cfg, wear, known, level=None):
     stages = _first_stages(fit, D, Wt, S, t, bank, cfg, wear, _nuisance(known)["steps"])
     if level is not None:
         # 3. nothing changed since the first flight: is the baseline itself off the fleet's?
-        mean, spread = level
-        base = slice(0, cfg.n_base + 1)
-        off = _fit_changes(D[base] - mean, Wt, S, t[base], t[:1], "step", bank, cfg.eps, spread=spread, level=False)
-        stages.append([("level", [f for f in off if "sensor:" not in bank[f[1]].name])])
+        stages.append([("level", _level_fits(D, Wt, S, t, bank, cfg, level))])
     return stages
+
+
+def _level_fits(D, Wt, S, t, bank, cfg, level) -> list:
+    """The fits (:func:`_fit_changes`) of the engine's baseline (its first n_base + 1 flights of
+    deviations D at flight numbers t) less the fleet's normal ``level`` (mean, covariance), with
+    that covariance and no level nuisance: how it is off the fleet's from its first flight."""
+    mean, spread = level
+    base = slice(0, cfg.n_base + 1)
+    return _fit_changes(D[base] - mean, Wt, S, t[base], t[:1], "step", bank, cfg.eps, spread=spread, level=False)
+
+
+def _calibration(D, Wt, S, t, bank, cfg, level, n_tests, columns) -> list[tuple[int, float]]:
+    """The raw-unit offsets [(signature column, offset)] of the sensors the engine's baseline
+    is off the fleet's by (:func:`_level_fits`: the best hypothesis holds a sensor, Bonferroni p
+    below alpha over ``n_tests``, at least min_step): a thermocouple or transducer calibrated off
+    by a constant from its first flight. Such an offset is constant in its raw unit, not in the
+    relative deviations, which move with each flight's operating point (the trims move up to
+    10 % between flights): read against the engine's relative level it made steps, drifts and
+    intermittent biases of the wrong sign on most flights (probe fleet P1: T48 +39 K from flight
+    0 -> 'sensor:T48 intermittent -2.7 K' on 12 of 21 flights). :func:`_calibrated` takes the
+    part that moves out."""
+    fits = _level_fits(D, Wt, S, t, bank, cfg, level)
+    if not fits:
+        return []
+    _, hi, T, th, _, _ = max(fits, key=lambda f: f[2] - bank[f[1]].cost(cfg))
+    h = bank[hi]
+    sensors = [(c, float(v)) for c, v in zip(h.columns, th) if columns[c].startswith("sensor:")]
+    big = float(np.linalg.norm(S[:, [c for c, _ in sensors]] @ np.array([v for _, v in sensors]))) if sensors else 0.0
+    if not sensors or stats.chi2.sf(T, len(h.columns)) * n_tests >= cfg.alpha or big < cfg.min_step:
+        return []
+    return sensors
+
+
+def _calibrated(D, Sk, offsets, base: int) -> np.ndarray:
+    """Deviations D (n, m) less the part of the raw-unit sensor ``offsets`` (:func:`_calibration`)
+    that moves from flight to flight: sum of offset x (S_k - its mean over the first ``base``
+    flights) in the offset's signature column, Sk (n, m, ncol) each flight's signatures. The
+    baseline's mean stays: the level test still sees the offset."""
+    for c, v in offsets:
+        col = Sk[:, :, c]
+        D = D - v * (col - col[:base].mean(axis=0))
+    return D
 
 
 def _first_stages(fit, D, Wt, S, t, bank, cfg, wear, fleet):
@@ -984,6 +1056,7 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
     finding: dict = {}                      # row index -> the finding it detected (:func:`_finding`)
     seen: list[tuple[float, str]] = []      # every sensor step detected: (onset, class)
     own = (1.0, -1)                         # the largest own scatter used, and its flight
+    offsets = None                          # raw-unit sensor offsets of its baseline (:func:`_calibration`)
     rolled = [Known(c.onsets[es.engine], "fleet", c.cls) for c in (wear.common if wear else [])
               if c.rollout and es.engine in c.onsets]          # its steps of fleet-wide changes rolled out
     for k in range(n):
@@ -1007,13 +1080,17 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
         D = es.D[rowsok][:, idx]
         Sbar_all = np.nanmean(es.S[rowsok], axis=0)[idx]
         Wt = np.linalg.inv(np.linalg.cholesky(Sigma[np.ix_(idx, idx)]))
+        # hypotheses testable with these channels (a bias of a channel without data is not)
+        bank = [h for h in bank_all if np.linalg.norm(Sbar_all[:, h.columns], axis=0).min() > 1e-9]
+        t = number[rowsok]
+        if offsets is None and level is not None and first == 0:
+            offsets = _calibration(D, Wt, Sbar_all, t, bank, cfg, level.at(Sbar_all, idx), len(bank), es.columns)
+        if offsets:
+            D = _calibrated(D, es.S[rowsok][:, idx], offsets, cfg.n_base + 1)
         toggled = sorted({es.columns.index(c) for o, c in seen if o >= number[first]})
         ratio = own_scatter(D, Wt, Sbar_all[:, toggled])
         Wt /= np.sqrt(ratio)
         own = max(own, (ratio, int(number[k])), key=lambda x: x[0])
-        # hypotheses testable with these channels (a bias of a channel without data is not)
-        bank = [h for h in bank_all if np.linalg.norm(Sbar_all[:, h.columns], axis=0).min() > 1e-9]
-        t = number[rowsok]
         mine = [f for f in found if f.onset >= number[first]]
         known = _known(mine, t[0], Sbar_all, es.columns) + [c for c in rolled if t[0] < c.onset <= t[-1]]
         stages = _stages(D, Wt, Sbar_all, t, bank, cfg, wear and wear.at(Sbar_all, idx), known,
