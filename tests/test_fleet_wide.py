@@ -59,24 +59,22 @@ RATE_TOL = 2e-4
     ("hpt", (-0.01, 0.005), range(1, 12)),           # a software change moving the hpt's match
 ])
 def test_a_fleet_wide_step_is_not_wear_and_leaves_the_earlier_flights_ok(cls, theta, changed):
+    """The fleet's normal wear is the rates drawn, not the step; no flight before the step
+    alarms; the step is the fleet's (its onsets, class and median size as drawn) and no engine's
+    fault: every engine that changed alike is measured from it, so none alarms (before, each
+    reported it as its own fault from the step on, while the same change rolled out over a few
+    flights was already left out of each engine's faults)."""
     fl, rates, Sigma = fleet(set(changed), cls, theta)
     rows, wear, _ = judged(fl, Sigma)
     # the fleet's normal wear is that of the rates drawn (numpy's median), not the step's
     np.testing.assert_allclose(wear.median, np.median(rates, axis=0), atol=RATE_TOL)
-    # flights before the step: no alarm on any engine (before: a drift from flight 0 on all)
-    early = [(e, r.flight, r.cls, r.kind) for e, rs in rows.items() for r in rs[:ONSET] if r.detected]
-    assert early == []
-    # the engines unchanged: no alarm at all
-    assert [e for e, rs in rows.items() if int(e[1:]) not in changed and any(r.detected for r in rs)] == []
-    # each changed engine reports the step, its class and onset, from one flight after it on,
-    # sized as drawn
-    for e, rs in rows.items():
-        if int(e[1:]) in changed:
-            for r in rs[ONSET + 1:]:
-                assert r.detected and r.cls == cls and r.kind == "step" and r.onset == ONSET, (e, r)
-            est = [float(x.split("=")[1]) for x in rs[-1].detail.split()]
-            # within 4 standard errors (the level is 1: a bias's std is its magnitude_std) or 10 %
-            np.testing.assert_allclose(est, theta, atol=4 * rs[-1].magnitude_std, rtol=0.1)
+    (c,) = wear.common
+    assert c.cls == cls and c.onsets == {f"E{e:02d}": ONSET for e in changed}
+    # the median fit within 10 % (sensor B) or 1e-3 (health: 4 SD read as 4 health parameters on 6 channels)
+    np.testing.assert_allclose([float(x.split("=")[1]) for x in c.detail.split()], theta, rtol=0.1, atol=1e-3)
+    # no alarm on any engine, before or after the step
+    alarms = [(e, r.flight, r.cls, r.kind) for e, rs in rows.items() for r in rs if r.detected]
+    assert alarms == []
 
 
 def test_a_fleet_wide_step_is_named_once_with_its_class_onset_and_size():

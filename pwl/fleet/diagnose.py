@@ -31,10 +31,10 @@ when nothing changed.
 - **Drift**: a ramp that wins is reported as kind ``drift`` with its rate per flight.
 - **Wear**: in a fleet, the whole-history ramp is tested against the fleet's normal wear
   (:func:`wear_reference`) instead of ``min_rate``: kind ``wear``, its rate beyond the fleet's.
-  Each engine's rate in it is fitted off its own steps, so a change most engines show at one
-  flight, or alike over a few (a fleet-wide recalibration or a software update rolled out:
-  :func:`common_steps`, named in a warning) is not wear. One rolled out is a nuisance of each
-  engine's tests, not its fault. A sensor is named for a trend from the first flight only
+  Each engine's rate in it is fitted off its own steps, so a change most engines show alike at
+  one flight or over a few (a fleet-wide recalibration or a software update rolled out:
+  :func:`common_steps`, named in a warning) is not wear; it is a nuisance of the tests of each
+  engine that changed alike, not its fault. A sensor is named for a trend from the first flight only
   when the components' wear does not fit it better (:func:`_component_wear`).
 - **Sensor episodes**: a sensor bias that goes away is ``cleared`` (not a fault), one that comes
   back is ``intermittent`` (:func:`_episodes`), judged flight by flight against the sensor's
@@ -475,10 +475,10 @@ def engine_steps(D: np.ndarray, Wt: np.ndarray, t: np.ndarray, cfg: DiagnosisCon
 
 @dataclass
 class CommonStep:
-    """A change most of a fleet's engines show (:func:`common_steps`): at one flight, or alike
-    over a few (``rollout``); its first flight ``onset``, the ``engines`` whose step it is
-    (``onsets``: engine -> the flight number of its step), out of ``eligible``; ``cls`` the
-    hypothesis most of them are isolated as (``alike`` engines) and ``detail`` its median fit
+    """A change most of a fleet's engines show alike (:func:`common_steps`): at one flight, or
+    over a few (``rollout``); its first flight ``onset``, the ``engines`` with a step there, out
+    of ``eligible``; ``cls`` the hypothesis most of them are isolated as (``alike`` engines,
+    ``onsets``: engine -> the flight number of its step, for those) and ``detail`` its median fit
     over those (as a decision's detail: fractions, sensor biases in their unit)."""
 
     onset: float
@@ -503,8 +503,8 @@ class CommonStep:
         how = (f"alike from flight {self.onset:g} ({what})" if self.alike == len(self.engines) else
                f"from flight {self.onset:g} ({self.alike} of them alike: {what})")
         return (f"{len(self.engines)} of {self.eligible} engines changed {how}: a fleet-wide change (a sensor "
-                "recalibration, a software or fuel change)? Left out of the fleet's normal wear; each engine's "
-                "rows report it from that flight")
+                "recalibration, a software or fuel change)? Left out of the fleet's normal wear and of the faults "
+                "of the engines that changed alike: their diagnosis is measured from it")
 
 
 def fleet_steps(series: list[EngineSeries], Sigma: np.ndarray, cfg: DiagnosisConfig = DiagnosisConfig()) -> dict:
@@ -522,14 +522,15 @@ def fleet_steps(series: list[EngineSeries], Sigma: np.ndarray, cfg: DiagnosisCon
 
 def common_steps(series: list[EngineSeries], Sigma: np.ndarray,
                  cfg: DiagnosisConfig = DiagnosisConfig(), steps: dict | None = None) -> list[CommonStep]:
-    """Changes most of the fleet shows (a fleet-wide sensor recalibration, a software or fuel
-    change): of the engines with at least ``cfg.wear_flights`` complete flights (none with fewer
-    than ``cfg.wear_engines``), more than half have a step (:func:`engine_steps`) at the same
-    flight number, or, rolled out, a step isolated alike (the same hypothesis) within
-    ``cfg.rollout`` consecutive flights (:func:`_rollouts`). Every step is isolated on its
-    engine (the bank's hypothesis with the largest T - cost, the engine's other steps as
-    nuisances); the class most of them share is named with its median fit. ``steps``: as
-    :func:`fleet_steps`, when already found."""
+    """Changes most of the fleet shows alike (a fleet-wide sensor recalibration, a software or
+    fuel change): of the engines with at least ``cfg.wear_flights`` complete flights (none with
+    fewer than ``cfg.wear_engines``), more than half have a step (:func:`engine_steps`) isolated
+    alike (the same hypothesis) at the same flight number, or, rolled out, within ``cfg.rollout``
+    consecutive flights (:func:`_rollouts`). Every step is isolated on its engine (the bank's
+    hypothesis with the largest T - cost, the engine's other steps as nuisances); the class most
+    of them share is named with its median fit. Different faults at one flight are not one
+    change (probe fleet P4: 12 engines, five classes at flight 10, raised the fleet-wide
+    warning). ``steps``: as :func:`fleet_steps`, when already found."""
     eng = []
     Wt = np.linalg.inv(np.linalg.cholesky(Sigma))
     steps = fleet_steps(series, Sigma, cfg) if steps is None else steps
@@ -551,7 +552,8 @@ def common_steps(series: list[EngineSeries], Sigma: np.ndarray,
     for s in isolated:
         at.setdefault(s[1], []).append(s)
     common = partial(_common, eligible=len(eng), bank=bank, columns=series[0].columns)
-    found = [common(at[tau]) for tau in sorted(at) if 2 * len(at[tau]) > len(eng)]
+    found = [c for c in (common(at[tau]) for tau in sorted(at) if 2 * len(at[tau]) > len(eng))
+             if 2 * c.alike > len(eng)]
     rest = [s for s in isolated if 2 * len(at[s[1]]) <= len(eng)]
     return found + [common(w, rollout=True) for w in _rollouts(rest, len(eng), cfg.rollout)]
 
@@ -567,7 +569,7 @@ def _common(steps: list, eligible: int, bank: list[Hypothesis], columns: list[st
     med = np.median(np.array(fits[hi]), axis=0)
     detail = " ".join(f"{columns[c]}={v:+.5g}" for c, v in zip(bank[hi].columns, med))
     return CommonStep(min(s[1] for s in steps), [s[0] for s in steps], eligible, bank[hi].name, len(fits[hi]),
-                      detail, {s[0]: s[1] for s in steps}, rollout)
+                      detail, {s[0]: s[1] for s in steps if s[2] == hi}, rollout)
 
 
 def _rollouts(steps: list, eligible: int, width: int) -> list[list]:
@@ -931,7 +933,7 @@ def _stages(D, Wt, S, t, bank, cfg, wear, known, level=None):
     mean over the flights), the fleet's normal ``wear`` and ``level`` in these channels
     ((mean (m,), covariance (m, m)) of :meth:`FleetNorm.at`) or None, ``known`` the changes
     found, in the order found (:func:`_known`), and the engine's steps of a fleet-wide change
-    rolled out (shape ``fleet``: a nuisance of every test, never a decision)."""
+    (shape ``fleet``: a nuisance of every test, never a decision)."""
     fit = partial(_fit_changes, D, Wt, S, t, bank=bank, eps=cfg.eps, trend=cfg.wear, **_nuisance(known))
     found = [k for k in known if k.shape != "fleet"]
     if found:   # a new change after the changes found, measured from them; else the last one again
@@ -989,7 +991,7 @@ def _calibrated(D, Sk, offsets, base: int) -> np.ndarray:
 
 def _first_stages(fit, D, Wt, S, t, bank, cfg, wear, fleet):
     """Stages 1 and 2 of :func:`_stages` on an engine without a fault found (``fleet``: the
-    flight numbers of its steps of a fleet-wide change rolled out, nuisances of ``fit`` too)."""
+    flight numbers of its steps of a fleet-wide change, nuisances of ``fit`` too)."""
     # 1. a step or a drift that starts after the first flights, off the engine's wear line
     stage1 = [("step", fit(t[1:], "step")), ("ramp", fit(t[1:], "ramp"))]
     # 2. with the wear line as nuisance, wear faster than normal is tested on its own: the
@@ -1035,9 +1037,9 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
                     wear: FleetNorm | None = None, level: FleetNorm | None = None) -> list[Decision]:
     """Causal diagnosis of one engine: one :class:`Decision` per flight, using flights 0..k.
     ``wear``: the fleet's normal wear (:func:`wear_reference`); without it, wear is reported
-    when faster than ``cfg.min_rate``. Its ``common`` fleet-wide changes rolled out
-    (:func:`common_steps`) that this engine took part in are nuisances of every test, never
-    its faults. ``level``: the fleet's normal baseline (:func:`level_reference`); with it, an
+    when faster than ``cfg.min_rate``. Its ``common`` fleet-wide changes (at one flight or
+    rolled out, :func:`common_steps`) that this engine took part in alike are nuisances of every
+    test, never its faults. ``level``: the fleet's normal baseline (:func:`level_reference`); with it, an
     engine whose first flights are already off the fleet's (and which changed no further) is
     kind ``level``, onset its first flight.
 
@@ -1058,7 +1060,7 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
     own = (1.0, -1)                         # the largest own scatter used, and its flight
     offsets = None                          # raw-unit sensor offsets of its baseline (:func:`_calibration`)
     rolled = [Known(c.onsets[es.engine], "fleet", c.cls) for c in (wear.common if wear else [])
-              if c.rollout and es.engine in c.onsets]          # its steps of fleet-wide changes rolled out
+              if es.engine in c.onsets]          # its steps of fleet-wide changes
     for k in range(n):
         r = es.flights[k]
         dec = Decision(es.engine, int(number[k]), r.label, r.source, "ok")
@@ -1144,7 +1146,7 @@ class Known(NamedTuple):
     """A change found on an engine that later tests are measured from (a nuisance of them):
     its ``onset`` (flight number), ``shape`` (``step``: a fault or a repair; ``ramp``: a drift,
     its fitted change per flight ``rate`` (m,) in the deviation channels; ``fleet``: the engine's
-    step of a fleet-wide change rolled out, :func:`common_steps`) and class ``cls``."""
+    step of a fleet-wide change, :func:`common_steps`) and class ``cls``."""
 
     onset: float
     shape: str
