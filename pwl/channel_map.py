@@ -4,7 +4,7 @@ A small TOML file read with the standard library's tomllib::
 
     [time]                       # optional
     column = "Timestamp"         # default: the column named time, timestamp, datetime or t
-    unit = "ms"                  # optional: s (default), ms, min, h; date-times need none
+    unit = "ms"                  # optional: s (default), ms, min, h, d; date-times need none
 
     [channels]                   # model channel = log column, with its unit if the log has none
     Wf = { column = "FuelFlow_lbs", unit = "lb/s" }
@@ -59,7 +59,7 @@ class ChannelMap:
     time : str
         The log's time column ("" to find it by name: time, timestamp, datetime or t).
     time_unit : str
-        Its unit: s, ms, min, h ("" for s; date-times need none).
+        Its unit: s, ms, min, h, d ("" for s; date-times need none).
     path : str
         The TOML file (named in errors).
     """
@@ -110,7 +110,7 @@ class ChannelMap:
         time = doc.get("time", {})
         time = _entry({"column": time} if isinstance(time, str) else time, "[time]", ("column", "unit"), (), fail)
         if time.get("unit", "") and UNITS.get(known(time["unit"]), ("",))[0] != "time":
-            fail("[time] unit", f"{time['unit']!r} is not a unit of time (s, ms, min, h)")
+            fail("[time] unit", f"{time['unit']!r} is not a unit of time (s, ms, min, h, d)")
         chans = doc.get("channels")
         if not isinstance(chans, dict) or not chans:
             fail("[channels]", "missing or empty: a table of model channel = { column = ..., unit = ... }")

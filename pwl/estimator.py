@@ -572,7 +572,8 @@ class Estimator:
                 lo, hi = self.ranges.get(c, (-np.inf, np.inf))
                 with np.errstate(over="ignore", invalid="ignore"):  # spikes (_SPIKE) overflow: inf
                     v = (a[:, j] if a.ndim == 2 else a) * sc
-                    v = v[np.isfinite(v) & ((v < lo) | (v > hi))]
+                    v = v[(v < lo) | (v > hi)]
+                v[np.abs(v) >= _SPIKE] = np.inf                     # a spike or an infinite value
                 if v.size:
                     self._evidence.setdefault(c, []).append(v[: self.EVIDENCE])
         y, y_hat = arrays[1], res.outputs["y_hat"]
@@ -601,17 +602,19 @@ class Estimator:
             return
         ja, jm, ka, kp = self._air
         _, _, S, _, DE = arrays
-        p2 = DE * (self.db.correction.P_std * kp)
-        off = disagree(S[:, ja] * ka, S[:, jm], p2) & ((flags & (FLAG_NOT_STARTED | FLAG_HELD_INPUT)) == 0)
-        if off.any():
-            flags[off] |= FLAG_AIR_DATA
-            self.air_data += int(off.sum())
-            rows = np.flatnonzero(off)[: self.EVIDENCE]
-            alt = S[rows, ja] * ka
-            self._evidence.setdefault("air_data", []).append(np.column_stack(
-                [np.log(p2[rows] / inlet_pressure(alt, S[rows, jm])), alt, S[rows, jm], p2[rows]]))
-        use = (flags & (FLAG_NOT_STARTED | FLAG_HELD_INPUT | FLAG_AIR_DATA)) == 0
-        self._lag_sums += lag_sums(S[:, ja] * ka, S[:, jm], p2, self.db.dt, use)
+        # spikes (_SPIKE) and infinite values overflow here: flagged implausible, named by their channel
+        with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+            p2 = DE * (self.db.correction.P_std * kp)
+            off = disagree(S[:, ja] * ka, S[:, jm], p2) & ((flags & (FLAG_NOT_STARTED | FLAG_HELD_INPUT)) == 0)
+            if off.any():
+                flags[off] |= FLAG_AIR_DATA
+                self.air_data += int(off.sum())
+                rows = np.flatnonzero(off)[: self.EVIDENCE]
+                alt = S[rows, ja] * ka
+                self._evidence.setdefault("air_data", []).append(np.column_stack(
+                    [np.log(p2[rows] / inlet_pressure(alt, S[rows, jm])), alt, S[rows, jm], p2[rows]]))
+            use = (flags & (FLAG_NOT_STARTED | FLAG_HELD_INPUT | FLAG_AIR_DATA)) == 0
+            self._lag_sums += lag_sums(S[:, ja] * ka, S[:, jm], p2, self.db.dt, use)
 
     @property
     def air_data_lag(self) -> tuple[float, float]:
@@ -654,7 +657,8 @@ class Estimator:
 
     def _typical(self, key):
         """Median of the values kept for ``key`` (:meth:`_checked`), per column."""
-        return np.median(np.concatenate(self._evidence[key]), axis=0)
+        with np.errstate(over="ignore", invalid="ignore"):      # infinite values: inf (or nan)
+            return np.median(np.concatenate(self._evidence[key]), axis=0)
 
     def _warn_channels(self, path, n: int) -> None:
         """Warn of every channel implausible on at least a tenth of a log's ``n`` samples, with
@@ -673,6 +677,7 @@ class Estimator:
             guess = likely_units(med, unit, lo, hi)
             why = (f"logged in {' or '.join(guess)}? Declare the unit (a 'name[unit]' column, a row of "
                    "units or a channel map)") if guess else (
+                "infinite values or spikes: a failed sensor, or a logger's overflow?" if np.isinf(med) else
                 "the engine not running, or a failed sensor?" if med < lo else "a unit mistake or a failed sensor?")
             warnings.warn(f"{path}: channel {c!r}: {k} of {n} samples implausible, typically {med:.6g} "
                           f"where {lo:.6g} to {hi:.6g} {unit} is plausible: {why}", PwlWarning, stacklevel=4)
@@ -744,6 +749,8 @@ class Estimator:
             span = lim[1] - lim[0]                    # inf for a channel without a range
         # a frozen word after a jump: a measured channel's failure; an input may be a demand held exactly
         cols[spikes(cols, span, frozen=np.arange(cols.shape[1]) >= U.shape[1])] = _SPIKE
+        cols[np.isinf(cols)] = _SPIKE          # implausible, as screen() counts and names them (not missing)
+        Y[np.isinf(Y)] = _SPIKE
         cols = cols[a - wide.start: b - wide.start]
         U, S = np.ascontiguousarray(cols[:, :U.shape[1]]), np.ascontiguousarray(cols[:, U.shape[1]:-2])
         TH, DE = (np.ascontiguousarray(cols[:, -2]), np.ascontiguousarray(cols[:, -1])) \

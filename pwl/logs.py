@@ -19,6 +19,7 @@ import csv
 import importlib
 import json
 import os
+import re
 import sys
 import warnings
 from dataclasses import dataclass, field
@@ -29,7 +30,7 @@ import numpy as np
 
 from .errors import PwlError, PwlWarning
 from .formats import FLIGHT_LOG, check, stamp
-from .h5io import SealError, atomic_h5, attr_str, check_seal
+from .h5io import SealError, atomic_h5, check_seal
 from .units import UnitError, converter
 
 FORMAT = FLIGHT_LOG.name
@@ -183,7 +184,8 @@ def write_csv(path, log: Log) -> None:
 @contextlib.contextmanager
 def _named(path, what: str = "damaged log"):
     """Any exception but pwl's own while reading ``path`` becomes a :class:`LogError` naming it
-    (HDF5, CSV, Parquet and MAT readers raise many kinds on a damaged file)."""
+    (HDF5, CSV, Parquet and MAT readers raise many kinds on a damaged file); text that is not
+    UTF-8 with what to do."""
     try:
         yield
     except SealError as e:
@@ -191,7 +193,10 @@ def _named(path, what: str = "damaged log"):
     except PwlError:
         raise
     except Exception as e:
-        raise LogError(f"{path}: {what} ({type(e).__name__}: {' '.join(str(e).split())})") from None
+        hint = (": not UTF-8 text (a Windows code page such as cp1252?): save it as UTF-8 (Excel: 'CSV UTF-8'; "
+                "UTF-16 with a byte-order mark reads too), or read it with pandas (pandas.read_csv(path, "
+                "encoding='cp1252')) and pass the DataFrame" if isinstance(e, UnicodeDecodeError) else "")
+        raise LogError(f"{path}: {what} ({type(e).__name__}: {' '.join(str(e).split())}){hint}") from None
 
 
 def read_log(source, channel_map=None) -> Log:
@@ -253,7 +258,7 @@ def _read_hdf5(path, cmap) -> Log:
 
 def _is_flight_log(path) -> bool:
     with h5py.File(path, "r") as f:
-        return attr_str(f, "format") == FORMAT
+        return _attr(f, "format") == FORMAT
 
 
 def read_header(path) -> Log:
@@ -286,7 +291,9 @@ def read_header(path) -> Log:
         check_seal(path)
         with h5py.File(path, "r") as f:
             check(FLIGHT_LOG, path, f, error=LogError,
-                  hint="an HDF5 file of another layout reads with a channel map")
+                  hint="an HDF5 file of another layout reads with a channel map naming its columns by path: "
+                       "1-D datasets (data/FuelFlow), fields of a compound dataset (records/FuelFlow) or columns "
+                       "of a 2-D dataset with a 'names' attribute (table/FuelFlow)")
             if "time" not in f or "channels" not in f:
                 raise LogError(f"{path}: /time or /channels is missing")
             time = np.asarray(f["time"][()], dtype=np.float64)
@@ -294,10 +301,22 @@ def read_header(path) -> Log:
             for k, d in f["channels"].items():
                 if d.shape != time.shape:
                     raise LogError(f"{path}: /channels/{k} has shape {d.shape}, expected {time.shape} like /time")
-                units[k] = attr_str(d, "unit", "")
-            attrs = {k: attr_str(f, k) for k in f.attrs if k not in ("format", "format_version")}
+                units[k] = _attr(d, "unit", "")
+            attrs = {k: _attr(f, k) for k in f.attrs if k not in ("format", "format_version")}
     check_time(path, time)
     return Log(time, {}, units, attrs=attrs, path=path)
+
+
+def _attr(obj, name: str, default=None):
+    """HDF5 attribute ``name`` of ``obj`` (a file, group or dataset) as a plain value: text as str
+    (not bytes), numbers as Python's, and a 1-element array as its element (tools that store every
+    attribute as an array: MATLAB's h5writeatt, ``attrs["unit"] = np.array([b"K"])``)."""
+    v = obj.attrs.get(name, default)
+    if isinstance(v, np.ndarray) and v.size == 1:
+        v = v.reshape(-1)[0]
+    if isinstance(v, np.generic):
+        v = v.item()
+    return v.decode() if isinstance(v, bytes) else v
 
 
 def sample_interval(time) -> float:
@@ -412,7 +431,7 @@ def _read_group(f, name, n, path):
         if v.shape != (n,):
             raise LogError(f"{path}: /{name}/{k} has shape {v.shape}, expected ({n},) like /time")
         data[k] = v
-        units[k] = attr_str(d, "unit", "")
+        units[k] = _attr(d, "unit", "")
     return data, units
 
 
@@ -474,10 +493,12 @@ def _vector(path, name, v):
 def _numeric(path, name, v, text_as_missing: bool = False) -> tuple[np.ndarray, int]:
     """Column ``name`` as a new float64 (n,) array and how many of its values were text read as
     missing: numbers and booleans as they are, missing values (empty cells, None, NA) as NaN,
-    text parsed as Python's ``float`` does (``1e400`` is inf). Other text (``ERR``, ``#N/A``,
-    ``-``): a LogError naming the first such value, or with ``text_as_missing`` NaN while fewer than
-    half the column's values are such text (a :class:`PwlWarning` names the column, the count
-    and the first)."""
+    text parsed as Python's ``float`` does (``1e400`` is inf), and also Fortran's D exponent
+    (``1.0D+03``) and thousands separators (``1,000.96``; ``1,000`` only in a column written
+    with decimal points). A number with a comma otherwise (``0,015``: a decimal comma) is a
+    LogError naming it. Other text (``ERR``, ``#N/A``, ``-``): a LogError naming the first such
+    value, or with ``text_as_missing`` NaN while fewer than half the column's values are such text
+    (a :class:`PwlWarning` names the column, the count and the first)."""
     import pandas as pd
     s = v if isinstance(v, pd.Series) else pd.Series(v)
     if pd.api.types.is_numeric_dtype(s.dtype):
@@ -496,6 +517,24 @@ def _numeric(path, name, v, text_as_missing: bool = False) -> tuple[np.ndarray, 
             out[i] = float(x)
         except (TypeError, ValueError):
             bad.append(i)
+    points = any("." in str(x) for x in a[np.isfinite(out)])
+    text = []
+    for i in bad:
+        x = str(a[i]).strip()
+        if _FORTRAN.fullmatch(x):
+            out[i] = float(x.replace("D", "E").replace("d", "e"))
+        elif _THOUSANDS.fullmatch(x) and ("." in x or points):
+            out[i] = float(x.replace(",", ""))
+        elif _COMMA_NUMBER.fullmatch(x) or _THOUSANDS.fullmatch(x):
+            raise LogError(f"{path}: column {name!r}: {a[i]!r} at sample {i} is a number with a comma, not read as "
+                           "one (a decimal comma, or a thousands separator?): write the log with decimal points "
+                           "and no thousands separators, or read it with pandas (pandas.read_csv(path, "
+                           "decimal=',') or thousands=',') and pass the DataFrame")
+        else:
+            text.append(i)
+    bad = text
+    if not bad:
+        return out, 0
     given = int(np.count_nonzero(~pd.isna(a)))
     if not text_as_missing or 2 * len(bad) >= given:
         raise LogError(f"{path}: column {name!r}: non-numeric value {a[bad[0]]!r} at sample {bad[0]}"
@@ -507,9 +546,12 @@ def _numeric(path, name, v, text_as_missing: bool = False) -> tuple[np.ndarray, 
 
 def _seconds(path, name, unit, v):
     """The time column as float64 (n,) seconds and the attributes it gives: numbers (converted
-    from ``unit``: ms, min, h) as they are; date-times (ISO 8601 text, datetime64, with or without
-    time zone) and durations (``00:01:02.5``, timedelta64) as seconds from the first sample, the
-    first date-time kept as the ``start_time`` attribute."""
+    from ``unit``: ms, min, h, d) as they are; date-times (ISO 8601 text, datetime64, with or
+    without time zone) and durations (``00:01:02.5``, timedelta64) as seconds from the first
+    sample, the first date-time kept as the ``start_time`` attribute; times of day (durations
+    under a day) continued past midnight (:func:`_past_midnight`). Numbers without a unit that
+    look like spreadsheet day numbers (:func:`_looks_like_days`) are a LogError asking for the
+    unit."""
     import pandas as pd
     s = v if isinstance(v, pd.Series) else pd.Series(v)
     if not (pd.api.types.is_datetime64_any_dtype(s.dtype) or pd.api.types.is_timedelta64_dtype(s.dtype)):
@@ -518,6 +560,13 @@ def _seconds(path, name, unit, v):
         except LogError as e:
             s = _parse_times(s, e)
         else:
+            if not unit and _looks_like_days(t):
+                fin = t[np.isfinite(t)]
+                raise LogError(f"{path}: time column {name!r} holds {float(fin[0])!r}, {float(fin[1])!r}, ...: "
+                               f"spreadsheet (Excel) serial day numbers, a sample every "
+                               f"{np.median(np.diff(fin)) * 86400:.4g} s? Declare the unit, days: a '{name}[d]' "
+                               f"header (a 'd' in a row of units, or the channel map's [time] unit = \"d\"); "
+                               f"'{name}[s]' if they are seconds")
             try:
                 scale, offset = converter(unit, "s", f"{path}: time column {name!r}")
             except UnitError as e:
@@ -527,12 +576,36 @@ def _seconds(path, name, unit, v):
     if not len(x):
         return np.zeros(0), {}
     start = {"start_time": x[0].isoformat()} if isinstance(x, pd.DatetimeIndex) and not pd.isna(x[0]) else {}
-    return np.asarray((x - x[0]).total_seconds(), dtype=np.float64), start
+    t = np.asarray((x - x[0]).total_seconds(), dtype=np.float64)
+    if isinstance(x, pd.TimedeltaIndex) and x.min() >= pd.Timedelta(0) and x.max() < pd.Timedelta(days=1):
+        t = _past_midnight(t)
+    return t, start
+
+
+def _looks_like_days(t) -> bool:
+    """Whether numbers of a time column look like spreadsheet serial day numbers (Excel's days
+    from 1899-12-30: 20000 to 80000 is 1954 to 2119) a sample every 1e-8 to 1e-4 days (0.9 ms to
+    8.6 s): as seconds they would be a log sampled at 10 kHz or faster, 5.5 h or more from its
+    start."""
+    fin = t[np.isfinite(t)]
+    return fin.size > 1 and 2e4 <= fin.min() and fin.max() <= 8e4 and 1e-8 <= np.median(np.diff(fin)) <= 1e-4
+
+
+def _past_midnight(t):
+    """Seconds (n,) of times of day (``23:59:59.990``, ``00:00:00.005``) continued past midnight:
+    each step back by nearly a day (the next step within an hour of midnight) adds a day to the
+    samples after it."""
+    step = np.diff(t)
+    wrap = (step < 0) & (step + 86400.0 > 0) & (step + 86400.0 < 3600.0)
+    return t + 86400.0 * np.r_[0, np.cumsum(wrap)] if wrap.any() else t
 
 
 def _parse_times(s, err: LogError):
-    """Text (or objects) of a time column that are not numbers as date-times or durations."""
+    """Text (or objects) of a time column that are not numbers as date-times or durations; ``err``
+    (:func:`_numeric`'s) for a number with a decimal comma (``0,015`` is no duration of 15 ns)."""
     import pandas as pd
+    if s.astype(str).str.strip().str.fullmatch(_COMMA_NUMBER).any():
+        raise err
     for parse in (lambda x: pd.to_datetime(x, format="ISO8601"),             # naive or one time zone
                   lambda x: pd.to_datetime(x, format="ISO8601", utc=True),   # mixed offsets
                   pd.to_timedelta):
@@ -674,12 +747,13 @@ def _from_frame(path, df, cmap, names=None) -> Log:
 
 def _read_csv(path, cmap) -> Log:
     """Delimited text through pandas: separator sniffed from the header (comma, semicolon, tab,
-    else runs of spaces; a decimal comma when the separator is not a comma and the first row has
-    one), UTF-8, empty cells NaN. Leading ``#`` comment lines and blank lines are skipped; a row of
-    units under the header (``rpm, K, kPa, ...``: no cell a number, most cells units pwl knows)
-    declares the units. Compressed files (:data:`_COMPRESSED`) are read as they are."""
+    else runs of spaces); decimal comma or point (:func:`_decimal`); UTF-8, or UTF-16 with a
+    byte-order mark; empty cells NaN. Leading ``#`` comment lines and blank lines are skipped; a
+    row of units under the header (``rpm, K, kPa, ...``: no cell a number) declares the units
+    (:func:`_units_of_row`). Compressed files (:data:`_COMPRESSED`) are read as they are."""
     import pandas as pd
-    with _open_text(path) as fh:
+    encoding = _encoding(path)
+    with _open_text(path, encoding) as fh:
         lines = [fh.readline() for _ in range(64)]
     skip = 0
     while skip < len(lines) and lines[skip] and (not lines[skip].strip() or lines[skip].lstrip().startswith("#")):
@@ -697,34 +771,94 @@ def _read_csv(path, cmap) -> Log:
     unit_row = _unit_row(split(first), cells)
     skiprows = list(range(skip)) + ([skip + 1] if unit_row else [])
     if unit_row:
-        from .units import known
-        odd = {c.strip(): u for c, u in zip(cells, unit_row) if u and known(u) is None}
-        if odd:     # "EU", "eng units", a description: no unit said
-            warnings.warn(PwlWarning(f"{path}: row {skip + 2} is read as the columns' units; not units pwl knows, "
-                                     f"so taken as undeclared: " + ", ".join(f"{c} {u!r}" for c, u in odd.items())),
-                          stacklevel=3)
-            unit_row = ["" if known(u) is None else u for u in unit_row]
         cells = [c if _split_header(c)[1] or not u.strip() else f"{c.strip()}[{u.strip()}]"
-                 for c, u in zip(cells, unit_row)]
-        first = lines[skip + 2] if skip + 2 < len(lines) else ""
+                 for c, u in zip(cells, _units_of_row(path, skip + 2, cells, unit_row))]
+    sample = pd.Series([c for line in lines[skip + 1 + bool(unit_row):] for c in split(line)], dtype=object)
+
+    def read(decimal):
+        return pd.read_csv(path, sep=sep, decimal=decimal, index_col=False, encoding=encoding,
+                           skiprows=skiprows or None, compression=_COMPRESSED.get(os.path.splitext(path.lower())[1]),
+                           **_EXACT_FLOATS)
     with warnings.catch_warnings():
         warnings.simplefilter("error", pd.errors.ParserWarning)   # pandas drops the extra fields
         try:
-            df = pd.read_csv(path, sep=sep, decimal="," if sep in ";\t" and "," in first else ".",
-                             index_col=False, encoding="utf-8", skiprows=skiprows or None,
-                             compression=_COMPRESSED.get(os.path.splitext(path.lower())[1]), **_EXACT_FLOATS)
+            decimal = _decimal(sample, sep)
+            df = read(decimal)
+            if decimal == "." and _decimal(_text_cells(df), sep) == ",":    # none in the first rows
+                decimal, df = ",", read(",")
         except pd.errors.ParserWarning:
             raise LogError(f"{path}: row {len(skiprows) + 2} has more fields than the header ({len(cells)})") from None
     if len(cells) != df.shape[1]:
         raise LogError(f"{path}: the header has {len(cells)} fields, pandas read {df.shape[1]} columns")
     if len(cells) > 1 and df.shape[0] and df.iloc[:, -1].isna().any():     # short rows read as NaN
-        _check_row_lengths(path, sep, len(cells), skip=len(skiprows) + 1)
+        _check_row_lengths(path, sep, len(cells), skip=len(skiprows) + 1, encoding=encoding)
+    if decimal == ",":
+        _points(df)
     return _from_frame(path, df, cmap, names=cells)
+
+
+#: a number written with a decimal comma (``0,015``, ``-2,5E3``), or with thousands separators
+#: (``1,000``, ``12,345.5``: the first group 1 to 3 digits, not 0), or with Fortran's D exponent
+#: (``1.0D+03``), matched on a whole cell
+_COMMA_NUMBER = re.compile(r"[+-]?\d*,\d+(?:[eE][+-]?\d+)?")
+_THOUSANDS = re.compile(r"[+-]?[1-9]\d{0,2}(?:,\d{3})+(?:\.\d*)?")
+_FORTRAN = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)[dD][+-]?\d+")
+#: the start of a date (2024-05-01, 01/05/2024, 1.5.2024) or a time of day (10:00) in a cell
+_DATE_OR_TIME = re.compile(r"\d{4}-\d\d-\d\d|\d{1,2}[./]\d{1,2}[./]\d{2,4}|\d{1,2}:\d\d")
+
+
+def _decimal(cells, sep: str) -> str:
+    """The decimal mark of delimited text whose cells (a pandas Series of str; NaN ignored) are
+    ``cells``: "," when one of them is a number with a decimal comma (:data:`_COMMA_NUMBER`; in a
+    ","-separated file, where such a number is quoted, not one that could be a number with
+    thousands separators: ``"1,000"``), else ".". """
+    s = cells.dropna().astype(str).str.strip()
+    hit = s.str.fullmatch(_COMMA_NUMBER)
+    if sep == ",":
+        hit &= ~s.str.fullmatch(_THOUSANDS)
+    return "," if hit.any() else "."
+
+
+def _text_cells(df):
+    """Every cell of ``df``'s text (not numeric) columns, as one Series."""
+    import pandas as pd
+    cols = [df.iloc[:, j] for j in range(df.shape[1]) if not pd.api.types.is_numeric_dtype(df.iloc[:, j].dtype)]
+    return pd.concat(cols, ignore_index=True).astype(object) if cols else pd.Series([], dtype=object)
+
+
+def _points(df) -> None:
+    """In place: the numbers with a decimal comma in ``df``'s text columns (a decimal-comma file's
+    column that pandas left as text for a cell of text among its numbers: ``ERR``) written with a
+    decimal point, for :func:`_numeric`."""
+    import pandas as pd
+    for j in range(df.shape[1]):
+        s = df.iloc[:, j]
+        if not pd.api.types.is_numeric_dtype(s.dtype):
+            hit = s.astype(object).astype(str).str.strip().str.fullmatch(_COMMA_NUMBER) & s.notna()
+            if hit.any():
+                df.isetitem(j, s.astype(object).where(~hit, s.astype(str).str.replace(",", ".", regex=False)))
+
+
+def _units_of_row(path, row: int, header: list[str], units: list[str]) -> list[str]:
+    """The units a row of units (row number ``row`` of the file) declares for the columns
+    ``header``: as written when at least half of its cells are units pwl knows (an unknown one is
+    then refused, naming it and the known units, where the model reads that channel: as in a
+    ``name[unit]`` header); else the row holds no units ("EU", "eng units", a description) and
+    every unknown cell is undeclared, named in a PwlWarning."""
+    from .units import known
+    odd = {c.strip(): u for c, u in zip(header, units) if u and known(u) is None}
+    if not odd or 2 * len(odd) <= sum(1 for u in units if u):
+        return units
+    warnings.warn(PwlWarning(f"{path}: row {row} is read as the columns' units; not units pwl knows, "
+                             f"so taken as undeclared: " + ", ".join(f"{c} {u!r}" for c, u in odd.items())),
+                  stacklevel=4)
+    return ["" if known(u) is None else u for u in units]
 
 
 def _unit_row(row: list[str], header: list[str]) -> list[str] | None:
     """``row``'s cells (stripped of brackets) if it is a row of units under ``header``: as many
-    cells, none a number; else None."""
+    cells, none a number (in any way :func:`_numeric` reads one), a date or a time of day; else
+    None."""
     if len(row) != len(header):
         return None
     cells = [c.strip().strip("[]()") for c in row]
@@ -734,15 +868,14 @@ def _unit_row(row: list[str], header: list[str]) -> list[str] | None:
             float(c.replace(",", "."))
             return True
         except ValueError:
-            return False
+            return bool(_FORTRAN.fullmatch(c) or _THOUSANDS.fullmatch(c) or _DATE_OR_TIME.match(c))
     if not full or any(number(c) for c in full):
         return None
     return cells
 
 
-def _open_text(path):
-    """The file as UTF-8 text (a byte-order mark dropped), decompressed per :data:`_COMPRESSED`."""
-    import io
+def _raw(path):
+    """The file's bytes, decompressed per :data:`_COMPRESSED` (a binary file object)."""
     kind = _COMPRESSED.get(os.path.splitext(path.lower())[1])
     if kind == "zip":
         import zipfile
@@ -750,15 +883,25 @@ def _open_text(path):
         names = [n for n in z.namelist() if not n.endswith("/")]
         if len(names) != 1:
             raise LogError(f"{path}: a zip archive holds {len(names)} files, a compressed log one")
-        raw = z.open(names[0])
-    elif kind:
+        return z.open(names[0])
+    if kind:
         import bz2
         import gzip
         import lzma
-        raw = {"gzip": gzip.open, "bz2": bz2.open, "xz": lzma.open}[kind](path, "rb")
-    else:
-        raw = open(path, "rb")
-    return io.TextIOWrapper(raw, encoding="utf-8-sig", newline="")
+        return {"gzip": gzip.open, "bz2": bz2.open, "xz": lzma.open}[kind](path, "rb")
+    return open(path, "rb")
+
+
+def _encoding(path) -> str:
+    """A text log's encoding: "utf-16" when it starts with UTF-16's byte-order mark, else "utf-8"."""
+    with _raw(path) as raw:
+        return "utf-16" if raw.read(2) in (b"\xff\xfe", b"\xfe\xff") else "utf-8"
+
+
+def _open_text(path, encoding: str = "utf-8"):
+    """The file as text (a byte-order mark dropped), decompressed per :data:`_COMPRESSED`."""
+    import io
+    return io.TextIOWrapper(_raw(path), encoding="utf-8-sig" if encoding == "utf-8" else encoding, newline="")
 
 
 #: pandas < 3 parses floats to within an ulp unless asked for the exact "round_trip" parser (the
@@ -766,20 +909,20 @@ def _open_text(path):
 _EXACT_FLOATS = {"float_precision": "round_trip"} if int(version("pandas").split(".")[0]) < 3 else {}
 
 
-def _check_row_lengths(path, sep, k, skip: int = 1) -> None:
+def _check_row_lengths(path, sep, k, skip: int = 1, encoding: str = "utf-8") -> None:
     """LogError naming the first non-blank row after the first ``skip`` lines (header, units,
     comments) with fewer than ``k`` fields (pandas fills them with NaN). Fields are counted by
     separators; a quoted separator counts too, so this runs only when the last column has
     missing values. Space-separated text cannot have an empty cell: a row with fewer fields would
     shift its values into the wrong columns."""
-    with _open_text(path) as fh:
+    with _open_text(path, encoding) as fh:
         if sep == r"\s+":
             for row, line in enumerate(fh):
                 if row >= skip and line.strip() and len(line.split()) < k:
                     raise LogError(f"{path}: row {row + 1} has {len(line.split())} field(s), the header has "
                                    f"{k} (space-separated text cannot have an empty cell: write NaN)")
             return
-        b = np.frombuffer(fh.buffer.read(), dtype=np.uint8)
+        b = np.frombuffer(fh.buffer.read() if encoding == "utf-8" else fh.read().encode(), dtype=np.uint8)
     ends = np.flatnonzero(b == 10)
     if b.size and b[-1] != 10:
         ends = np.append(ends, b.size)
@@ -807,9 +950,9 @@ _MAT_SKIP = ("__header__", "__version__", "__globals__", "#refs#", "#subsystem#"
 
 def _read_mat(path, cmap) -> Log:
     """MAT file: v7.3 (HDF5) through h5py, older versions through scipy.io.loadmat. One vector
-    variable per column, or one struct of them; text and scalar variables become attributes;
-    units from an optional ``units`` variable: a struct (``units.Wf = 'kg/s'``) or a k x 2 cell
-    array of {name, unit} rows."""
+    variable per column, or a struct of them (its fields read as variables: :func:`_mat_structs`),
+    or a 2-D matrix with a cell array of its column names (:func:`_mat_matrix`); text and scalar
+    variables become attributes; units from an optional ``units`` variable (:func:`_mat_units`)."""
     if h5py.is_hdf5(path):
         with h5py.File(path, "r") as f:
             variables = {k: _mat73(f, f[k]) for k in f if k not in _MAT_SKIP}
@@ -817,12 +960,7 @@ def _read_mat(path, cmap) -> Log:
         from scipy.io import loadmat
         variables = {k: v for k, v in loadmat(path, simplify_cells=True).items() if k not in _MAT_SKIP}
     units = variables.pop("units", {})
-    if len(variables) == 1 and isinstance(next(iter(variables.values())), dict):
-        variables = next(iter(variables.values()))               # one struct of vectors
-    if not isinstance(units, dict):
-        rows = np.asarray(units, dtype=object).reshape(-1, 2)
-        units = {_mat_text(a): _mat_text(b) for a, b in rows}
-    units = {k: _mat_text(u) for k, u in units.items()}
+    variables = _mat_matrix(_mat_structs(path, variables))
     attrs, names, data = {}, [], []
     for k, v in variables.items():
         if isinstance(v, str) or (isinstance(v, np.ndarray) and v.dtype.kind == "U"):
@@ -832,9 +970,68 @@ def _read_mat(path, cmap) -> Log:
         else:
             names.append(k)
             data.append(v)
+    units = _mat_units(path, units, names)
     log = _from_columns(path, names, [units.get(k, "") for k in names], data, **_select(cmap))
     log.attrs.update({k: v for k, v in attrs.items() if k not in log.attrs})
     return log
+
+
+def _mat_vector(v) -> bool:
+    """Whether a MAT variable is a numeric vector or matrix (more than one number)."""
+    return isinstance(v, np.ndarray) and v.dtype.kind in "biuf" and v.size > 1
+
+
+def _mat_structs(path, variables: dict) -> dict:
+    """``variables`` with each struct replaced by its fields (``flight.Nf`` read as ``Nf``; a
+    variable of the same name wins): the log's one struct of vectors beside text or scalars
+    (``engine``), or a struct of those beside the vectors. LogError for two structs that hold
+    vectors: which one is the log is ambiguous."""
+    structs = {k: v for k, v in variables.items() if isinstance(v, dict)}
+    tables = [k for k, v in structs.items() if any(_mat_vector(x) for x in v.values())]
+    if len(tables) > 1:
+        raise LogError(f"{path}: structs {', '.join(map(repr, tables))} each hold vectors: which one is the log is "
+                       "ambiguous; save one log per MAT file")
+    out = {k: v for k, v in variables.items() if k not in structs}
+    for v in structs.values():
+        out.update({k: x for k, x in v.items() if k not in out})
+    return out
+
+
+def _mat_matrix(variables: dict) -> dict:
+    """``variables`` with a 2-D numeric matrix (``data``, n x k or k x n) split into its columns,
+    named by the one cell or char array beside it of as many names as the matrix has columns
+    (or rows) (``names = {'time', 'Wf', ...}``); the matrix and the names as they are when no
+    such array, or more than one, is found."""
+    lists = {k: [str(x).strip() for x in v.ravel()] for k, v in variables.items() if isinstance(v, np.ndarray)
+             and v.size > 1 and v.dtype.kind in "OU" and all(isinstance(x, str) for x in v.ravel())}
+    for m, a in list(variables.items()):
+        if not (_mat_vector(a) and a.ndim == 2 and min(a.shape) > 1):
+            continue
+        fit = [k for k, n in lists.items() if len(n) in a.shape and k in variables]
+        if len(fit) != 1:
+            continue
+        names = lists[fit[0]]
+        cols = a if a.shape[1] == len(names) else a.T
+        del variables[m], variables[fit[0]]
+        variables.update({n: cols[:, j] for j, n in enumerate(names) if n not in variables})
+    return variables
+
+
+def _mat_units(path, units, names) -> dict:
+    """Column name -> unit of a MAT file's ``units`` variable: a struct (``units.Wf = 'kg/s'``),
+    or a cell array of {name, unit} pairs, k x 2 (``{'Wf','kg/s'; ...}``) or 2 x k: of the two,
+    the one whose name cells name more of the columns ``names``. LogError when neither names one."""
+    if isinstance(units, dict):
+        return {k: _mat_text(u) for k, u in units.items()}
+    a = np.asarray(units, dtype=object)
+    a = a.reshape(1, 2) if a.shape == (2,) else a
+    ways = [w for w in ((a if a.shape[1:] == (2,) else None), (a.T if a.shape[:1] == (2,) and a.ndim == 2 else None))
+            if w is not None]
+    named = [sum(_mat_text(n) in names for n in w[:, 0]) for w in ways]
+    if not ways or max(named) == 0:
+        raise LogError(f"{path}: variable 'units' (shape {a.shape}) pairs no column name with a unit: write it "
+                       "as a k x 2 cell {'Wf', 'kg/s'; ...} or a struct (units.Wf = 'kg/s')")
+    return {_mat_text(n): _mat_text(u) for n, u in ways[int(np.argmax(named))]}
 
 
 def _mat_text(v) -> str:
@@ -846,7 +1043,7 @@ def _mat_text(v) -> str:
 
 def _mat73(f, obj):
     """A v7.3 MAT variable: struct -> dict, char -> str, cell -> object array, numbers -> array."""
-    cls = attr_str(obj, "MATLAB_class", "")
+    cls = _attr(obj, "MATLAB_class", "")
     if isinstance(obj, h5py.Group):
         return {k: _mat73(f, obj[k]) for k in obj}
     if obj.attrs.get("MATLAB_empty", 0):
@@ -860,25 +1057,66 @@ def _mat73(f, obj):
 
 
 def _read_h5_columns(path, cmap) -> Log:
-    """An HDF5 file of another layout through a channel map: one 1-D dataset per column, named
-    by its path (``data/FuelFlow``), unit from its ``unit`` or ``units`` attribute; the time from
-    the map's [time] column, else the dataset named by :data:`TIME_NAMES` beside the channels."""
+    """An HDF5 file of another layout through a channel map: its columns (:func:`_h5_columns`)
+    named by path (``data/FuelFlow``), units from a ``unit`` or ``units`` attribute; the time from
+    the map's [time] column, else the column named by :data:`TIME_NAMES` beside the channels."""
     with h5py.File(path, "r") as f:
+        have = _h5_columns(f)
         for col, where in cmap.columns().items():
-            if not isinstance(f.get(col), h5py.Dataset):
-                raise LogError(f"{path}: no dataset {col!r} ({where})")
+            if col.strip("/") not in have:
+                raise LogError(f"{path}: no dataset {col!r} ({where}; a column is a 1-D dataset, a field of a "
+                               "compound dataset or a column of a 2-D dataset with a 'names' attribute)")
         cols = sorted(cmap.columns())
         time = cmap.time
         if not time:
-            groups = sorted({c.strip("/").rpartition("/")[0] for c in cmap.columns()} & (set(f) | {""}))
-            near = [f"{g}/{k}".lstrip("/") for g in groups for k, d in (f[g] if g else f).items()
-                    if isinstance(d, h5py.Dataset)]
+            groups = {c.strip("/").rpartition("/")[0] for c in cmap.columns()}
+            near = [c for c in have if c.rpartition("/")[0] in groups]
             found = _find_time(path, [c.rpartition("/")[2] for c in near])
             time = next((c for c in near if found and c.rpartition("/")[2] == found), None)
-        cols += [time] if time and time not in cols and isinstance(f.get(time), h5py.Dataset) else []
-        data = [f[c].asstr()[()] if h5py.check_string_dtype(f[c].dtype) else f[c][()] for c in cols]
-        units = [attr_str(f[c], "unit", "") or attr_str(f[c], "units", "") for c in cols]
-    return _from_columns(path, cols, units, data, time=time, time_unit=cmap.time_unit)
+        cols += [time] if time and time not in cols and time.strip("/") in have else []
+        read = {}
+        def value(c):
+            d, key, unit = have[c.strip("/")]
+            if d.name not in read:
+                read[d.name] = d.asstr()[()] if h5py.check_string_dtype(d.dtype) else d[()]
+            v = read[d.name]
+            if key is None or isinstance(key, str):
+                return (v if key is None else v[key]), unit
+            return (v[:, key[1]] if key[0] == 1 else v[key[1]]), unit
+        data, units = zip(*(value(c) for c in cols)) if cols else ((), ())
+    return _from_columns(path, cols, list(units), list(data), time=time, time_unit=cmap.time_unit)
+
+
+def _h5_columns(f) -> dict:
+    """The columns of an HDF5 file ``f`` of another layout: path -> (dataset, key, unit). Every
+    dataset (key None; unit from its ``unit`` or ``units`` attribute); every field of a 1-D
+    compound dataset (``records/Nf``: key the field name); every column of a 2-D dataset with a
+    ``names`` attribute of as many names as it has columns (``data/Nf``: key (1, j)) or rows (key
+    (0, j)). A compound or 2-D dataset's units: a ``units`` attribute of one unit per name."""
+    out = {}
+    def visit(name, d):
+        if not isinstance(d, h5py.Dataset):
+            return
+        if d.ndim == 1 and d.dtype.names:
+            names = list(d.dtype.names)
+            keys = names
+        elif d.ndim == 2 and "names" in d.attrs and len(np.ravel(d.attrs["names"])) in d.shape:
+            names = [_text(n) for n in np.ravel(d.attrs["names"])]
+            axis = 1 if len(names) == d.shape[1] else 0
+            keys = [(axis, j) for j in range(len(names))]
+        else:
+            out[name] = (d, None, _attr(d, "unit", "") or _attr(d, "units", ""))
+            return
+        units = [_text(u) for u in np.ravel(d.attrs.get("units", []))]
+        units = units if len(units) == len(names) else [""] * len(names)
+        out.update({f"{name}/{n}": (d, k, u) for n, k, u in zip(names, keys, units)})
+    f.visititems(visit)
+    return out
+
+
+def _text(v) -> str:
+    """An HDF5 string (bytes or str) as str."""
+    return v.decode() if isinstance(v, bytes) else str(v)
 
 
 def _reader(path):

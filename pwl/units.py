@@ -39,6 +39,7 @@ UNITS = {
     # time (s): a log's time column
     "s": ("time", 1.0, 0.0), "ms": ("time", 1e-3, 0.0), "us": ("time", 1e-6, 0.0), "µs": ("time", 1e-6, 0.0),
     "ns": ("time", 1e-9, 0.0), "min": ("time", 60.0, 0.0), "h": ("time", 3600.0, 0.0),
+    "d": ("time", 86400.0, 0.0),     # days: a spreadsheet's serial date numbers (Excel: days from 1899-12-30)
     # ratios: percent and fraction are not interchangeable silently ("-" is also Mach's unit)
     "%": ("percent", 1.0, 0.0), "-": ("dimensionless", 1.0, 0.0),
 }
@@ -48,7 +49,10 @@ UNITS = {
 ALIASES = {"lb/hr": "lb/h", "lbs/hr": "lb/h", "lbs/h": "lb/h", "lbm/hr": "lb/h", "pps": "lb/s",
            "lbs/s": "lb/s", "kg/hr": "kg/h", "deg c": "degC", "deg f": "degF", "deg r": "degR",
            "°r": "degR", "°k": "K", "rev/min": "rpm", "sec": "s", "secs": "s", "seconds": "s",
-           "msec": "ms", "hr": "h", "hours": "h", "mins": "min", "feet": "ft", "bara": "bar"}
+           "msec": "ms", "hr": "h", "hours": "h", "mins": "min", "days": "d", "day": "d", "feet": "ft",
+           "bara": "bar", "celsius": "degC", "deg_c": "degC", "deg.c": "degC", "degrees c": "degC",
+           "fahrenheit": "degF", "deg_f": "degF", "deg.f": "degF", "degrees f": "degF", "kelvin": "K",
+           "deg_k": "K", "rankine": "degR", "deg_r": "degR"}
 
 
 def _folded() -> dict:
