@@ -130,5 +130,12 @@ def read_strings(dset) -> list[str]:
 
 
 def attr_str(obj, name: str, default=None):
+    """HDF5 attribute ``name`` of ``obj`` (a file, group or dataset) as a plain value: text as str
+    (not bytes), numbers as Python's, and a 1-element array as its element (tools that store every
+    attribute as an array: MATLAB's h5writeatt, ``attrs["unit"] = np.array([b"K"])``)."""
     v = obj.attrs.get(name, default)
+    if isinstance(v, np.ndarray) and v.size == 1:
+        v = v.reshape(-1)[0]
+    if isinstance(v, np.generic):
+        v = v.item()
     return v.decode() if isinstance(v, bytes) else v

@@ -30,7 +30,7 @@ import numpy as np
 
 from .errors import PwlError, PwlWarning
 from .formats import FLIGHT_LOG, check, stamp
-from .h5io import SealError, atomic_h5, check_seal
+from .h5io import SealError, atomic_h5, attr_str, check_seal
 from .units import UnitError, converter
 
 FORMAT = FLIGHT_LOG.name
@@ -258,7 +258,7 @@ def _read_hdf5(path, cmap) -> Log:
 
 def _is_flight_log(path) -> bool:
     with h5py.File(path, "r") as f:
-        return _attr(f, "format") == FORMAT
+        return attr_str(f, "format") == FORMAT
 
 
 def read_header(path) -> Log:
@@ -301,22 +301,10 @@ def read_header(path) -> Log:
             for k, d in f["channels"].items():
                 if d.shape != time.shape:
                     raise LogError(f"{path}: /channels/{k} has shape {d.shape}, expected {time.shape} like /time")
-                units[k] = _attr(d, "unit", "")
-            attrs = {k: _attr(f, k) for k in f.attrs if k not in ("format", "format_version")}
+                units[k] = attr_str(d, "unit", "")
+            attrs = {k: attr_str(f, k) for k in f.attrs if k not in ("format", "format_version")}
     check_time(path, time)
     return Log(time, {}, units, attrs=attrs, path=path)
-
-
-def _attr(obj, name: str, default=None):
-    """HDF5 attribute ``name`` of ``obj`` (a file, group or dataset) as a plain value: text as str
-    (not bytes), numbers as Python's, and a 1-element array as its element (tools that store every
-    attribute as an array: MATLAB's h5writeatt, ``attrs["unit"] = np.array([b"K"])``)."""
-    v = obj.attrs.get(name, default)
-    if isinstance(v, np.ndarray) and v.size == 1:
-        v = v.reshape(-1)[0]
-    if isinstance(v, np.generic):
-        v = v.item()
-    return v.decode() if isinstance(v, bytes) else v
 
 
 def sample_interval(time) -> float:
@@ -431,7 +419,7 @@ def _read_group(f, name, n, path):
         if v.shape != (n,):
             raise LogError(f"{path}: /{name}/{k} has shape {v.shape}, expected ({n},) like /time")
         data[k] = v
-        units[k] = _attr(d, "unit", "")
+        units[k] = attr_str(d, "unit", "")
     return data, units
 
 
@@ -1043,7 +1031,7 @@ def _mat_text(v) -> str:
 
 def _mat73(f, obj):
     """A v7.3 MAT variable: struct -> dict, char -> str, cell -> object array, numbers -> array."""
-    cls = _attr(obj, "MATLAB_class", "")
+    cls = attr_str(obj, "MATLAB_class", "")
     if isinstance(obj, h5py.Group):
         return {k: _mat73(f, obj[k]) for k in obj}
     if obj.attrs.get("MATLAB_empty", 0):
@@ -1105,7 +1093,7 @@ def _h5_columns(f) -> dict:
             axis = 1 if len(names) == d.shape[1] else 0
             keys = [(axis, j) for j in range(len(names))]
         else:
-            out[name] = (d, None, _attr(d, "unit", "") or _attr(d, "units", ""))
+            out[name] = (d, None, attr_str(d, "unit", "") or attr_str(d, "units", ""))
             return
         units = [_text(u) for u in np.ravel(d.attrs.get("units", []))]
         units = units if len(units) == len(names) else [""] * len(names)
