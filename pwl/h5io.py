@@ -125,8 +125,13 @@ def write_strings(group, name: str, values) -> None:
     group.create_dataset(name, data=np.array(list(values), dtype=object), dtype=STR)
 
 
+def as_strings(values) -> list[str]:
+    """HDF5 strings (bytes or str, any shape: a dataset's or an attribute's values) as a flat list of str."""
+    return [s.decode() if isinstance(s, bytes) else str(s) for s in np.ravel(values)]
+
+
 def read_strings(dset) -> list[str]:
-    return [s.decode() if isinstance(s, bytes) else str(s) for s in dset[()]]
+    return as_strings(dset[()])
 
 
 def attr_str(obj, name: str, default=None):

@@ -30,7 +30,7 @@ import numpy as np
 
 from .errors import PwlError, PwlWarning
 from .formats import FLIGHT_LOG, check, stamp
-from .h5io import SealError, atomic_h5, attr_str, check_seal
+from .h5io import SealError, as_strings, atomic_h5, attr_str, check_seal
 from .units import UnitError, converter
 
 FORMAT = FLIGHT_LOG.name
@@ -1089,22 +1089,17 @@ def _h5_columns(f) -> dict:
             names = list(d.dtype.names)
             keys = names
         elif d.ndim == 2 and "names" in d.attrs and len(np.ravel(d.attrs["names"])) in d.shape:
-            names = [_text(n) for n in np.ravel(d.attrs["names"])]
+            names = as_strings(d.attrs["names"])
             axis = 1 if len(names) == d.shape[1] else 0
             keys = [(axis, j) for j in range(len(names))]
         else:
             out[name] = (d, None, attr_str(d, "unit", "") or attr_str(d, "units", ""))
             return
-        units = [_text(u) for u in np.ravel(d.attrs.get("units", []))]
+        units = as_strings(d.attrs.get("units", []))
         units = units if len(units) == len(names) else [""] * len(names)
         out.update({f"{name}/{n}": (d, k, u) for n, k, u in zip(names, keys, units)})
     f.visititems(visit)
     return out
-
-
-def _text(v) -> str:
-    """An HDF5 string (bytes or str) as str."""
-    return v.decode() if isinstance(v, bytes) else str(v)
 
 
 def _reader(path):

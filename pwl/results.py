@@ -18,7 +18,7 @@ import numpy as np
 
 from .errors import PwlError, UsageError
 from .formats import RESULTS, check, stamp
-from .h5io import atomic_h5, attr_str, check_seal, read_strings, write_strings
+from .h5io import as_strings, atomic_h5, attr_str, check_seal, read_strings, write_strings
 from .logs import Log
 from .runtime import (FLAG_AIR_DATA, FLAG_DYN_OUTSIDE, FLAG_HEALTH, FLAG_HEALTH_HELD, FLAG_HELD_INPUT, FLAG_IMPLAUSIBLE,
                       FLAG_MISFIT, FLAG_NO_UPDATE, FLAG_NOT_STARTED, FLAG_PARTIAL, FLAG_SETTLING, FLAG_STUCK,
@@ -251,7 +251,7 @@ class Result:
         with open_results(path) as f:
             names = {o: read_strings(f["names"][o]) for o in f.get("names", {})}
             outputs = {o: np.asarray(f[o][()]) for o in names}
-            units = {o: [u.decode() if isinstance(u, bytes) else str(u) for u in f[o].attrs["units"]]
+            units = {o: as_strings(f[o].attrs["units"])
                      for o in names if "units" in f[o].attrs}
             attrs = {k: attr_str(f, k) for k in f.attrs}
             snaps = Snapshots.load(f["snapshots"]) if "snapshots" in f else None
@@ -428,7 +428,7 @@ def file_summary(f) -> dict:
         h = np.asarray(g["out_h_hat"][()])
         last = h[-1] if h.shape[0] else np.full(h.shape[1], np.nan)
         row.update({f"h_hat.{n}": float(v) for n, v in zip(read_strings(g["names_h_hat"]), last)})
-    sensors = [s.decode() if isinstance(s, bytes) else str(s) for s in a.get("residual_sensors", [])]
+    sensors = as_strings(a.get("residual_sensors", []))
     row.update({f"rms.{s}": float(v) for s, v in zip(sensors, a.get("residual_rms", []))})
     row["air_data_lag_s"] = float(a.get("air_data_lag_s", np.nan))
     return row

@@ -126,6 +126,11 @@ class Hypothesis:
         return cfg.kappa * len(self.columns) + (cfg.pair_cost if "+" in self.name else 0.0)
 
 
+def component(column: str) -> str:
+    """The component a health column belongs to: the name before its last ``_`` (fan_eff -> fan)."""
+    return column.rsplit("_", 1)[0] if "_" in column else column
+
+
 def hypotheses(columns: list[str], pairs: bool = True) -> list[Hypothesis]:
     """The bank: one component (all its health parameters, grouped by the name before the last
     ``_``: fan_eff, fan_flow -> fan), every pair of components, every component with every sensor
@@ -136,7 +141,7 @@ def hypotheses(columns: list[str], pairs: bool = True) -> list[Hypothesis]:
         if c.startswith("sensor:"):
             out.append(Hypothesis(c, [j]))
         else:
-            comps.setdefault(c.rsplit("_", 1)[0] if "_" in c else c, []).append(j)
+            comps.setdefault(component(c), []).append(j)
     bank = [Hypothesis(k, v) for k, v in comps.items()]
     if pairs:
         keys = list(comps)
@@ -807,7 +812,7 @@ def _curvature(h: Hypothesis, th: np.ndarray, S: np.ndarray, columns: list[str])
         return False
     parts: dict[str, list[int]] = {}
     for i, c in enumerate(h.columns):
-        parts.setdefault(columns[c].rsplit("_", 1)[0], []).append(i)
+        parts.setdefault(component(columns[c]), []).append(i)
     eff = {k: next((th[i] for i in ix if columns[h.columns[i]].endswith("_eff")), 0.0) for k, ix in parts.items()}
     if len(parts) != 2 or min(eff.values()) >= 0 or max(eff.values()) <= 0:
         return False
@@ -1090,7 +1095,8 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
             continue
         idx = np.flatnonzero(keep)
         D = es.D[rowsok][:, idx]
-        Sbar_all = np.nanmean(es.S[rowsok], axis=0)[idx]
+        Sk = es.S[rowsok][:, idx]                 # each flight's signatures
+        Sbar_all = np.nanmean(Sk, axis=0)
         Wt = np.linalg.inv(np.linalg.cholesky(Sigma[np.ix_(idx, idx)]))
         # hypotheses testable with these channels (a bias of a channel without data is not)
         bank = [h for h in bank_all if np.linalg.norm(Sbar_all[:, h.columns], axis=0).min() > 1e-9]
@@ -1098,7 +1104,7 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
         if offsets is None and level is not None and first == 0:
             offsets = _calibration(D, Wt, Sbar_all, t, bank, cfg, level.at(Sbar_all, idx), len(bank), es.columns)
         if offsets:
-            D = _calibrated(D, es.S[rowsok][:, idx], offsets, cfg.n_base + 1)
+            D = _calibrated(D, Sk, offsets, cfg.n_base + 1)
         toggled = sorted({es.columns.index(c) for o, c in seen if o >= number[first]})
         ratio = own_scatter(D, Wt, Sbar_all[:, toggled])
         Wt /= np.sqrt(ratio)
