@@ -193,9 +193,9 @@ def _named(path, what: str = "damaged log"):
     except PwlError:
         raise
     except Exception as e:
-        hint = (": not UTF-8 text (a Windows code page such as cp1252?): save it as UTF-8 (Excel: 'CSV UTF-8'; "
-                "UTF-16 with a byte-order mark reads too), or read it with pandas (pandas.read_csv(path, "
-                "encoding='cp1252')) and pass the DataFrame" if isinstance(e, UnicodeDecodeError) else "")
+        hint = (": not UTF-8 text (cp1252 is read when its first 64 KiB show it): save it as UTF-8 (Excel: 'CSV "
+                "UTF-8'; UTF-16 with a byte-order mark reads too), or read it with pandas (pandas.read_csv(path, "
+                "encoding=...)) and pass the DataFrame" if isinstance(e, UnicodeDecodeError) else "")
         raise LogError(f"{path}: {what} ({type(e).__name__}: {' '.join(str(e).split())}){hint}") from None
 
 
@@ -735,10 +735,10 @@ def _from_frame(path, df, cmap, names=None) -> Log:
 
 def _read_csv(path, cmap) -> Log:
     """Delimited text through pandas: separator sniffed from the header (comma, semicolon, tab,
-    else runs of spaces); decimal comma or point (:func:`_decimal`); UTF-8, or UTF-16 with a
-    byte-order mark; empty cells NaN. Leading ``#`` comment lines and blank lines are skipped; a
-    row of units under the header (``rpm, K, kPa, ...``: no cell a number) declares the units
-    (:func:`_units_of_row`). Compressed files (:data:`_COMPRESSED`) are read as they are."""
+    else runs of spaces); decimal comma or point (:func:`_decimal`); UTF-8, UTF-16 with a
+    byte-order mark or cp1252 (:func:`_encoding`); empty cells NaN. Leading ``#`` comment lines
+    and blank lines are skipped; a row of units under the header (``rpm, K, kPa, ...``: no cell a
+    number) declares the units (:func:`_units_of_row`). Compressed files (:data:`_COMPRESSED`) are read as they are."""
     import pandas as pd
     encoding = _encoding(path)
     with _open_text(path, encoding) as fh:
@@ -881,9 +881,23 @@ def _raw(path):
 
 
 def _encoding(path) -> str:
-    """A text log's encoding: "utf-16" when it starts with UTF-16's byte-order mark, else "utf-8"."""
+    """A text log's encoding: "utf-16" when it starts with UTF-16's byte-order mark; "cp1252" (the
+    Windows code page Excel saves CSV in) when its first 64 KiB are not UTF-8 but are cp1252 (a
+    header's ``°C`` or ``µs``: the numbers are ASCII either way); else "utf-8"."""
+    import codecs
     with _raw(path) as raw:
-        return "utf-16" if raw.read(2) in (b"\xff\xfe", b"\xfe\xff") else "utf-8"
+        head = raw.read(1 << 16)
+    if head[:2] in (b"\xff\xfe", b"\xfe\xff"):
+        return "utf-16"
+    try:
+        codecs.getincrementaldecoder("utf-8")().decode(head, final=False)   # a character cut at the end is fine
+    except UnicodeDecodeError:
+        try:
+            head.decode("cp1252")
+            return "cp1252"
+        except UnicodeDecodeError:
+            pass
+    return "utf-8"
 
 
 def _open_text(path, encoding: str = "utf-8"):
@@ -910,7 +924,7 @@ def _check_row_lengths(path, sep, k, skip: int = 1, encoding: str = "utf-8") -> 
                     raise LogError(f"{path}: row {row + 1} has {len(line.split())} field(s), the header has "
                                    f"{k} (space-separated text cannot have an empty cell: write NaN)")
             return
-        b = np.frombuffer(fh.buffer.read() if encoding == "utf-8" else fh.read().encode(), dtype=np.uint8)
+        b = np.frombuffer(fh.buffer.read() if encoding != "utf-16" else fh.read().encode(), dtype=np.uint8)
     ends = np.flatnonzero(b == 10)
     if b.size and b[-1] != 10:
         ends = np.append(ends, b.size)

@@ -328,11 +328,24 @@ def test_times_of_day_continue_past_midnight(tmp_path):
     np.testing.assert_allclose(log.time, T, rtol=0, atol=1e-9)
 
 
-def test_utf16_with_a_byte_order_mark_reads_and_cp1252_says_to_save_as_utf8(tmp_path):
+def test_utf16_with_a_byte_order_mark_and_cp1252_read(tmp_path):
+    """UTF-16 with a byte-order mark reads; cp1252 (Excel's 'CSV' on Windows: '°C' is one byte, 0xB0)
+    was refused before and now reads as the UTF-8 file; bytes that are neither, past the first 64 KiB,
+    say to save the file as UTF-8."""
     df = pd.DataFrame(dict(zip(["time[s]", "Nf[rpm]", "T48[K]", "P2[Pa]", "Wf[kg/s]"], columns())))
     df.to_csv(tmp_path / "u16.txt", sep="\t", index=False, encoding="utf-16")
     assert_values(read_log(tmp_path / "u16.txt"))
-    df.rename(columns={"T48[K]": "T48[°C]"}).to_csv(tmp_path / "w.csv", index=False, encoding="cp1252")
-    with pytest.raises(LogError, match=r"w.csv: unreadable CSV log \(UnicodeDecodeError: .*\): not UTF-8 text .*save "
+    celsius = df.assign(**{"T48[K]": df["T48[K]"] - 273.15}).rename(columns={"T48[K]": "T48[°C]"})
+    celsius.to_csv(tmp_path / "w.csv", index=False, encoding="cp1252")
+    celsius.to_csv(tmp_path / "u8.csv", index=False, encoding="utf-8")
+    assert b"T48[\xb0C]" in (tmp_path / "w.csv").read_bytes()
+    a, b = read_log(tmp_path / "w.csv"), read_log(tmp_path / "u8.csv")
+    assert a.units == b.units and a.units["T48"] == "°C"
+    np.testing.assert_array_equal(a.channels["T48"], b.channels["T48"])
+    np.testing.assert_allclose(a.require(["T48"], ["K"])[:, 0], df["T48[K]"], rtol=1e-14)
+    rows = "".join(f"{0.015 * i!r},1,2,3,4\n" for i in range(4000)).encode()
+    assert len(rows) > 1 << 16
+    (tmp_path / "late.csv").write_bytes(b"time,Nf,T48,P2,Wf\n" + rows + "60,1,2,3,4\xb0\n".encode("cp1252"))
+    with pytest.raises(LogError, match=r"late.csv: unreadable CSV log \(UnicodeDecodeError: .*\): not UTF-8 text .*save "
                                        r"it as UTF-8"):
-        read_log(tmp_path / "w.csv")
+        read_log(tmp_path / "late.csv")
