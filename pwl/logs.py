@@ -1044,7 +1044,9 @@ def _mat_text(v) -> str:
 
 
 def _mat73(f, obj):
-    """A v7.3 MAT variable: struct -> dict, char -> str, cell -> object array, numbers -> array."""
+    """A v7.3 MAT variable: struct -> dict, char -> str (a char matrix of several rows, ``char('time',
+    'Wf')``, -> an array of its rows), cell -> object array, numbers -> array. HDF5 holds MATLAB's
+    arrays transposed (column-major)."""
     cls = attr_str(obj, "MATLAB_class", "")
     if isinstance(obj, h5py.Group):
         return {k: _mat73(f, obj[k]) for k in obj}
@@ -1052,7 +1054,8 @@ def _mat73(f, obj):
         return "" if cls == "char" else np.zeros(0)
     v = obj[()]
     if cls == "char":
-        return "".join(map(chr, v.T.ravel()))
+        rows = ["".join(map(chr, r)) for r in np.atleast_2d(v.T)]
+        return rows[0] if len(rows) == 1 else np.array(rows)
     if cls == "cell":
         return np.vectorize(lambda r: _mat73(f, f[r]), otypes=[object])(v.T)
     return v.T

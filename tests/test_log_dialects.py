@@ -264,6 +264,22 @@ def test_mat_matrix_with_a_cell_of_names(tmp_path, names):
     assert_values(read_log(tmp_path / "m.mat"))
 
 
+def test_mat73_matrix_with_a_char_matrix_of_names(tmp_path):
+    """v7.3 (HDF5, column-major: MATLAB's n x k matrix stored k x n, its k x 5 char matrix of names
+    5 x k as uint16): the char matrix was read as one string of all names interleaved and the log
+    refused for its missing time."""
+    with h5py.File(tmp_path / "m.mat", "w", userblock_size=512) as f:
+        f["data"] = np.column_stack(columns()).T
+        f["data"].attrs["MATLAB_class"] = np.bytes_("double")
+        f["names"] = np.array([[ord(c) for c in n.ljust(5)] for n in NAMES], np.uint16).T
+        f["names"].attrs["MATLAB_class"] = np.bytes_("char")
+        f["engine"] = np.array([[ord(c) for c in "ESN7"]], np.uint16).T
+        f["engine"].attrs["MATLAB_class"] = np.bytes_("char")
+    log = read_log(tmp_path / "m.mat")
+    assert_values(log)
+    assert log.attrs["engine"] == "ESN7"
+
+
 def test_infinite_values_are_named_and_numpy_warnings_do_not_leak():
     """inf on a fifth of the samples of the inlet pressure (an input of the air-data check) and of
     a sensor: numpy's RuntimeWarnings (overflow in p2 = DE * ..., in the numba ufunc _disagree)
