@@ -544,7 +544,7 @@ class Estimator:
 
     def _warn_absent(self, log: Log) -> None:
         absent = self.absent_sensors(log)
-        text = [log.attrs["text_columns"][c] for c in absent if c in log.attrs.get("text_columns", {})]
+        text = [log.attrs["left_out"][c] for c in absent if c in log.attrs.get("left_out", {})]
         if absent:
             warnings.warn(f"{log.path}: no {', '.join(map(repr, absent))} channel"
                           f"{''.join(f' ({t})' for t in text)}: run without "

@@ -97,8 +97,8 @@ class Log:
                 if name in absent_ok:
                     out[:, j] = np.nan
                     continue
-                if name in self.attrs.get("text_columns", {}):
-                    raise LogError(self.attrs["text_columns"][name])
+                if name in self.attrs.get("left_out", {}):
+                    raise LogError(self.attrs["left_out"][name])
                 like = [c for c in self.channels if c.casefold() == name.casefold()]
                 hint = (f"; {like[0]!r} differs in case only: rename the column, or map it with a channel map"
                         if like else "")
@@ -614,9 +614,10 @@ def _from_columns(path, names, units, data, time=None, time_unit="", keep=None) 
     or durations). ``time``: the time column (default: found by :data:`TIME_NAMES`) and
     ``time_unit`` (a channel map's); ``keep``: the columns to read -> where a channel map names
     them (default all; the others are dropped unread). Columns ``truth.<name>`` are truth
-    channels. Without ``keep``, a column mostly of text is left out (``attrs["text_columns"]``:
-    name -> why). LogError on a missing or ambiguous time column, duplicate names, non-numeric
-    values in a kept column, a column of another length."""
+    channels. Without ``keep``, a column mostly of text, and a name used by columns of different
+    values, are left out (``attrs["left_out"]``: name -> why; the copies of a column of equal
+    values are one column). LogError on a missing or ambiguous time column, duplicate names kept
+    (the time, a channel map's), non-numeric values in a kept column, a column of another length."""
     time = time or _find_time(path, names)
     if time is None:
         raise LogError(f"{path}: no 'time' column (one named {', '.join(TIME_NAMES)} in any case, "
@@ -628,7 +629,7 @@ def _from_columns(path, names, units, data, time=None, time_unit="", keep=None) 
         raise _missing(path, missing[0], keep[missing[0]], names)
     wanted = [i for i, n in enumerate(names) if keep is None or n in keep or n == time]
     dup = sorted({names[i] for i in wanted if names.count(names[i]) > 1})
-    if dup:
+    if dup and (keep is not None or time in dup):
         raise LogError(f"{path}: duplicate column(s) {dup}: which one to use is ambiguous")
     it = names.index(time)
     seconds, attrs = _seconds(path, time, _declared(units[it], time_unit, f"{path}: time column {time!r}"),
@@ -644,7 +645,7 @@ def _from_columns(path, names, units, data, time=None, time_unit="", keep=None) 
                 raise
             # a text column (flight phase, status) that no channel map asked for: left out; a
             # channel the estimator needs is then refused as text by Log.require
-            attrs.setdefault("text_columns", {})[names[i]] = str(e)
+            attrs.setdefault("left_out", {})[names[i]] = str(e)
             continue
         if n_text:
             attrs.setdefault("non_numeric", {})[names[i]] = n_text
@@ -653,7 +654,13 @@ def _from_columns(path, names, units, data, time=None, time_unit="", keep=None) 
                            f"the time column {seconds.size}")
         name, d, u = ((names[i][6:], truth, tunits) if names[i].startswith("truth.")
                       else (names[i], chans, cunits))
+        if name in d and not (units[i] == u[name] and np.array_equal(v, d[name], equal_nan=True)):
+            attrs.setdefault("left_out", {})[names[i]] = (
+                f"{path}: duplicate column {names[i]!r}: its copies differ, which one to use is ambiguous")
         d[name], u[name] = v, units[i]
+    for n in set(dup) & set(attrs.get("left_out", ())):    # a copy of text or of other values
+        for d in (chans, cunits, truth, tunits):
+            d.pop(n[6:] if n.startswith("truth.") else n, None)
     seconds = _reorder_rows(path, seconds, chans, truth, attrs)
     seconds = _drop_repeated_rows(path, seconds, chans, truth, attrs)
     check_time(path, seconds)

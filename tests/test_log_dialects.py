@@ -365,3 +365,26 @@ def test_utf16_with_a_byte_order_mark_and_cp1252_read(tmp_path):
     with pytest.raises(LogError, match=r"late.csv: unreadable CSV log \(UnicodeDecodeError: .*\): not UTF-8 text .*save "
                                        r"it as UTF-8"):
         read_log(tmp_path / "late.csv")
+
+
+def test_duplicate_columns_left_out_unless_needed(tmp_path):
+    """Export tools repeat names (two 'Spare' columns, a channel written twice): every such log was
+    refused. Now copies of equal values are one column, a name shared by different values is left
+    out and named, refused only where it is needed (a sensor then runs without it, the warning
+    saying why)."""
+    from pwl.demo_data import demo_paths
+    from pwl.estimator import Estimator
+    rows = [r + [str(i), str(-i), r[1]] for i, r in enumerate(rows_of())]
+    log = read_log(write_rows(tmp_path / "d.csv", rows, header=NAMES + ["Spare", "Spare", "Nf"]))
+    assert_values(log)
+    assert list(log.attrs["left_out"]) == ["Spare"] and "Spare" not in log.channels
+    with pytest.raises(LogError, match=r"d.csv: duplicate column 'Spare': its copies differ"):
+        log.require(["Spare"])
+    db_path, logs = demo_paths()
+    full = read_log(logs[0])
+    n = 1500
+    df = pd.DataFrame({"time[s]": full.time[:n]} | {f"{k}[{full.units[k]}]": v[:n] for k, v in full.channels.items()})
+    df.insert(3, "T48[K]", full.channels["T48"][:n] + 5.0, allow_duplicates=True)
+    df.to_csv(tmp_path / "t48.csv", index=False)
+    with pytest.warns(PwlWarning, match=r"no 'T48' channel \(.*t48.csv: duplicate column 'T48': its copies differ"):
+        Estimator(db_path).run(read_log(tmp_path / "t48.csv"))

@@ -397,7 +397,7 @@ def test_channel_map_on_parquet_mat_and_dataframes(demo, tmp_path):
     ("badtime.csv", b"time,Nf\n0,1\nnoon,1\n", "badtime.csv: column 'time': non-numeric value 'noon'"
                                                ".*not ISO 8601 date-times or durations"),
     ("utf.csv", b"time,Nf\n0,1\n0.1,\x81\x8d1\n", "utf.csv: unreadable CSV log.*UnicodeDecodeError"),
-    ("dup.csv", b"Time,Nf,Nf\n0,1,2\n", r"dup.csv: duplicate column\(s\) \['Nf'\]"),
+    ("dup.csv", b"Time,Nf,Time\n0,1,0\n", r"dup.csv: columns \[.Time., .Time.\] could each be the time"),
     ("twotimes.csv", b"time,Time,Nf\n0,0,1\n", r"twotimes.csv: columns \['time', 'Time'\] could each be the time"),
     ("notime.csv", b"N1,N2\n0,1\n", "notime.csv: no 'time' column .*columns: 'N1', 'N2'"),
     ("unit.csv", b"time[fortnights],Nf\n0,1\n", "unit.csv: time column 'time': unit 'fortnights'"),
@@ -476,7 +476,7 @@ def test_channel_map_errors_against_a_log_name_both_files(tmp_path):
     assert read_log(tmp_path / "log.csv", channel_map=tmp_path / "m.toml").channels["Wf"].tolist() == [1.0, 2.0]
     # without a map a text column is left out, named; a channel that needs it is refused
     log = read_log(tmp_path / "log.csv")
-    assert list(log.channels) == ["FF"] and list(log.attrs["text_columns"]) == ["Note"]
+    assert list(log.channels) == ["FF"] and list(log.attrs["left_out"]) == ["Note"]
     with pytest.raises(LogError, match="log.csv: column 'Note': non-numeric value 'fine' at sample 0"):
         log.require(["Note"])
     (tmp_path / "text.csv").write_bytes(b"time;Nf\n0;1\n0.1;1.2.3\n")
