@@ -17,12 +17,20 @@ from numba.extending import intrinsic
 
 def record(name: str, field_names: list, doc: str):
     """A new record class: ``cls(*values)`` builds one, from Python or compiled code; its fields
-    keep their values alive (they are read with :func:`fields`)."""
+    keep their values alive (they are read with :func:`fields`).
+
+    The class and its numba type are bound in this module under ``name`` and ``name + "Type"``:
+    numba's on-disk cache pickles a kernel's signature and finds a type again by its module and
+    name; a class found nowhere is pickled by value, comes back as another class, and a kernel
+    taking it was compiled again in every process (a minute for a :class:`pwl.streaming.Stream`)."""
+    if name in globals():
+        raise ValueError(f"pwl.byref: a record named {name!r} exists")
     typ = type(name + "Type", (types.StructRef,), {
-        "preprocess_fields": lambda self, f: tuple((n, types.unliteral(t)) for n, t in f)})
+        "preprocess_fields": lambda self, f: tuple((n, types.unliteral(t)) for n, t in f), "__module__": __name__})
     structref.register(typ)
     cls = type(name, (structref.StructRefProxy,), {"__doc__": doc, "__module__": __name__})
     structref.define_proxy(cls, typ, list(field_names))
+    globals().update({name: cls, typ.__name__: typ})
     return cls
 
 

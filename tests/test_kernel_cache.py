@@ -92,3 +92,33 @@ def test_a_package_folder_the_user_cannot_write_caches_in_the_users_folder(tmp_p
     assert os.path.basename(cache_root(pkg, lambda f: f not in ro)).startswith("pwl-numba-")
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "mine"))
     assert cache_root(pkg, lambda f: False) == str(tmp_path / "mine")
+
+
+RECORD_KERNEL = textwrap.dedent("""
+    import numpy as np
+    from numba import njit
+    from pwl.byref import fields, record
+
+    Probe = record("CacheProbe", ["a", "b"], "a record passed to a cached kernel")
+
+    @njit(cache=True, _nrt=False)      # fields() borrows: kernels reading them count no references
+    def kernel(rec):
+        a, b = fields(rec)
+        return a[1] + b
+
+    print(kernel(Probe(np.arange(3.0), 2.0)))
+""")
+
+
+def test_a_kernel_taking_a_record_is_loaded_from_the_cache(tmp_path):
+    """A record's class and numba type are found again by name in a new process: the classes
+    were made where pickle could not find them, numba pickled the kernel's signature by value,
+    never matched it in the next process and compiled it again (a Stream took a minute to open in
+    every process)."""
+    (tmp_path / "rk.py").write_text(RECORD_KERNEL)
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"), NUMBA_DEBUG_CACHE="1")
+    runs = [subprocess.run([sys.executable, "-c", "import rk"], cwd=tmp_path, env=env, capture_output=True,
+                           text=True, check=True).stdout for _ in range(2)]
+    assert all(r.strip().endswith("3.0") for r in runs), runs
+    assert "data saved" in runs[0] and "rk.kernel" in runs[0]
+    assert "data loaded" in runs[1] and "data saved" not in runs[1], runs[1]
