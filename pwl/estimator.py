@@ -18,7 +18,7 @@ from .h5io import atomic_h5
 from .logs import (Log, LogError, check_time, read_header, read_log, read_rows, resample, rows_missing, sample_interval,
                    time_gaps)
 from .runtime import (NEVER, SMALLEST_ROW, FLAG_AIR_DATA, FLAG_DYN_OUTSIDE, FLAG_HEALTH_HELD, FLAG_HELD_INPUT, FLAG_IMPLAUSIBLE, FLAG_NO_UPDATE, FLAG_NOT_STARTED,
-                      FLAG_SETTLING, FLAG_STUCK, FLAG_TRIM_OUTSIDE, HEALTH_HOLD_RATIO, MISFIT_SIGMAS, STUCK_AFTER,
+                      FLAG_SETTLING, FLAG_STUCK, FLAG_TRIM_FILLED, FLAG_TRIM_OUTSIDE, HEALTH_HOLD_RATIO, MISFIT_SIGMAS, STUCK_AFTER,
                       STUCK_SIGMAS, Bias, Filter, Inputs, Outputs, PackedModel, blank_implausible, filter_loop, report, screen, spike_mask, burst_mask, state_layout)
 from .results import LOG_ATTRS, Result, append_rows, init_result_file
 from .snapshots import SNAPSHOT_OUTPUTS, SnapshotAccumulator, SteadyConfig
@@ -384,6 +384,7 @@ class Estimator:
         self._evidence = {}      # channel or ("misfit", sensor) -> kept values (_checked)
         self.low_rate = {}       # channel logged at a lower rate -> its step, s (_hold_low_rate)
         self.air_data = 0        # samples whose scheduling and inlet pressure disagree (_check_air_data)
+        self.trim_filled = 0     # samples interpolated from trims the build filled (FLAG_TRIM_FILLED)
         self._lag_sums = np.zeros(6)   # the inlet pressure's lag behind the air data (air_data_lag)
         self.frozen = {}         # input -> [samples frozen while the engine moved, the value] (_check_frozen_inputs)
         self._frozen_spans = []  # their (first, last) times
@@ -561,6 +562,7 @@ class Estimator:
         channel's implausible values and every sensor's misfitting ones with their predictions
         kept (:attr:`EVIDENCE` per chunk) for the warnings."""
         self._check_envelope(res.flags, res.time, path)
+        self.trim_filled += int(np.count_nonzero(res.flags & FLAG_TRIM_FILLED))
         self._check_air_data(res.flags, arrays)
         self._check_frozen_inputs(res.flags, res.time, arrays[0], arrays[2])
         corr = self.db.correction
@@ -583,7 +585,7 @@ class Estimator:
         # the grid, no implausible channel, no sensor already left out as stuck (a frozen sensor
         # misfits once its prediction moves)
         fit = (res.flags & (FLAG_TRIM_OUTSIDE | FLAG_DYN_OUTSIDE | FLAG_NOT_STARTED | FLAG_IMPLAUSIBLE | FLAG_STUCK
-                            | FLAG_NO_UPDATE | FLAG_AIR_DATA | FLAG_HELD_INPUT)) == 0
+                            | FLAG_NO_UPDATE | FLAG_AIR_DATA | FLAG_HELD_INPUT | FLAG_TRIM_FILLED)) == 0
         self._fit_rows += int(fit.sum())
         _longest_runs(hit, self._misfit_runs)
         for i, (c, k) in enumerate(zip(self.db.names["y"], hit.sum(axis=0))):
@@ -690,6 +692,14 @@ class Estimator:
             warnings.warn(f"{path}: {k} of {n} samples outside the database's grid, {far}: the model there "
                           f"is {how} the grid's edge (the farther out, the less its estimates hold); a "
                           "database built over the log's envelope fixes it", PwlWarning, stacklevel=4)
+        if self.trim_filled:
+            st = self.db.trim_status
+            nodes = "; ".join(", ".join(f"{a.name} {a.values[i]:g}" for a, i in zip(self.db.trim_grid.axes, idx))
+                              for idx in np.argwhere(st != 0)[:4]) + ("; ..." if np.count_nonzero(st) > 4 else "")
+            warnings.warn(f"{path}: {self.trim_filled} of {n} samples interpolated from trims the build did not "
+                          f"compute ({np.count_nonzero(st)} of {st.size} nodes filled or extrapolated from their line: "
+                          f"{nodes}): not the plant's, so not trusted; a build whose trims converge there fixes it "
+                          "(`pwl info` counts them)", PwlWarning, stacklevel=4)
         for c, (k, v) in self.frozen.items():
             warnings.warn(f"{path}: input {c!r} held {v:.6g} {self.channel_units.get(c, '')} exactly on {k} of {n} "
                           f"samples ({k * self.db.dt:.3g} s) while the operating point moved: a frozen word, or a meter "
@@ -1088,7 +1098,8 @@ class Estimator:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)      # an all-NaN axis
                 env[1], env[2] = np.fmin(env[1], np.nanmin(pt, axis=0)), np.fmax(env[2], np.nanmax(pt, axis=0))
-        outside = (res.flags & (FLAG_TRIM_OUTSIDE | FLAG_DYN_OUTSIDE | FLAG_NOT_STARTED | FLAG_AIR_DATA)) != 0
+        outside = (res.flags & (FLAG_TRIM_OUTSIDE | FLAG_DYN_OUTSIDE | FLAG_NOT_STARTED | FLAG_AIR_DATA
+                                | FLAG_TRIM_FILLED)) != 0
         outs = {o: res.outputs[o] for o in SNAPSHOT_OUTPUTS}
         # no snapshot value of what was not estimated there: health held, or any estimate while
         # the filter settles (the window's logged channels count: the diagnosis reads those)

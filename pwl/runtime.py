@@ -83,6 +83,9 @@ FLAG_SETTLING = 2048      # within the filter's settling time of its first valid
 FLAG_AIR_DATA = 4096      # pressure altitude, Mach and the inlet total pressure disagree (set after the
                           # step loop by the estimator, pwl.airdata): one of them is wrong; not trusted
 NOISY_CHANGES = 0.9       # a noisy signal changes on at least this fraction of its samples
+FLAG_TRIM_FILLED = 8192   # the trims were interpolated with weight on a node whose trim the build
+                          # did not compute (filled or extrapolated from its line: /trim/status):
+                          # not the plant's; not trusted
 
 
 
@@ -137,7 +140,7 @@ class Inputs(NamedTuple):
 
 class Model(NamedTuple):
     """The packed model (read only; :meth:`PackedModel.record`)."""
-    trim_tab: np.ndarray   # (trim nodes, nx+nu+ny+nz) trims, corrected units
+    trim_tab: np.ndarray   # (trim nodes, nx+nu+ny+nz+1) trims, corrected units; 1 if filled
     dyn_tab: np.ndarray    # (dyn nodes, block) A_a..K (+ Q_a, R online): :func:`block_layout`
     dims: np.ndarray       # int64 [nx, nu, ny, nz, nq, nh]
     ex: np.ndarray         # (nc, 2) the distinct correction exponent pairs; pair 0 is (0, 0)
@@ -387,6 +390,8 @@ def _interpolate(io, model, grids, filt, w, k, osl, ost, cs):
         flags |= FLAG_DYN_OUTSIDE
     m = corner_weights(filt.t_idx, w.t_frac, grids.t_str, w.t_wts, w.t_rows)
     interp_rows(model.trim_tab, w.t_wts, w.t_rows, m, w.tw)
+    if w.tw[_u(w.tw.shape[0] - 1)] > 1e-9:      # the trim table's last column: 1 on filled nodes
+        flags |= FLAG_TRIM_FILLED
     m = corner_weights(filt.d_idx, w.d_frac, grids.d_str, w.d_wts, w.d_rows)
     interp_rows(model.dyn_tab, w.d_wts, w.d_rows, m, w.dw)
     return flags, m, d_out
@@ -1069,7 +1074,8 @@ def augmented(db: GainDatabase):
 class PackedModel:
     """A database packed for the kernel: one contiguous row per grid node.
 
-    trim_tab: (trim nodes, nx+nu+ny+nz) = [x, u, y, z]; dyn_tab: (dyn nodes, block) =
+    trim_tab: (trim nodes, nx+nu+ny+nz+1) = [x, u, y, z, filled] (filled: 1 where the build
+    did not compute the trim, FLAG_TRIM_FILLED); dyn_tab: (dyn nodes, block) =
     [A_a[:nx], B_a[:nx] row-major; C_a, D_a, F_a, G_a, K column-major] (the tuner rows of A_a
     and B_a, [0 I] and [0], are not stored: the kernel applies them), and with ``online`` also
     [Q_a, R] row-major, with p_tab (dyn nodes, na*na) the steady-state a-priori P; the rest are
@@ -1113,8 +1119,9 @@ class PackedModel:
         if online and zones is not None:
             raise UsageError("online covariance and zone gains exclude each other")
         tg, dg = db.trim_grid, db.dyn_grid
+        filled = (db.trim_status != 0).astype(float).reshape(tg.size, 1)
         trim_tab = np.ascontiguousarray(np.concatenate(
-            [db.trim[k].reshape(tg.size, -1) for k in "xuyz"], axis=1))
+            [db.trim[k].reshape(tg.size, -1) for k in "xuyz"] + [filled], axis=1))
         aug = augmented(db)
         if not tune:
             aug["K"] = aug["K"].copy()

@@ -8,12 +8,13 @@ from pwl.grid import Axis, Grid
 
 
 def make_database(seed=0, nx=2, nu=1, ny=3, nz=2, nh=4, nq=2, trim_shape=(3, 4), dyn_shape=(2, 3),
-                  policy="clip", correction=True, dt=0.015, spread=1.0):
+                  policy="clip", correction=True, dt=0.015, spread=1.0, filled=False):
     """A random database whose matrices are stable and whose gains are the steady-state gains.
 
     Scheduling variables: p0 (trim and dynamics axis), p1 (both); trims vary smoothly.
     ``spread``: how much the matrices differ from node to node (1: independent draws; small:
     close to one common draw, so that gains shared between nodes, e.g. zones, stay stabilizing).
+    ``filled``: random trim statuses (else every trim computed: a filled one flags its samples).
     """
     rng = np.random.default_rng(seed)
     na = nx + nq
@@ -47,7 +48,7 @@ def make_database(seed=0, nx=2, nu=1, ny=3, nz=2, nh=4, nq=2, trim_shape=(3, 4),
         K[idx] = steady_state_gain(Aa, Ca, np.eye(na) * 1e-2, np.eye(ny) * 1e-1)[0]
     db = GainDatabase(
         names=names, units=units, trim_grid=tg, dyn_grid=dg, trim=trim,
-        trim_status=rng.integers(0, 3, T).astype(np.int8),
+        trim_status=(lambda st: st if filled else np.zeros_like(st))(rng.integers(0, 3, T).astype(np.int8)),
         dynamics=dyn, dyn_status=np.zeros(D, np.int8), dyn_donor=-np.ones(D, np.int64),
         tuner={"V": V, "V_pinv": Vp, "h_ref": np.zeros(nh)},
         kalman={"K": K, "P": np.broadcast_to(np.eye(na), D + (na, na)).copy(),

@@ -43,7 +43,7 @@ def assert_same(a, b):
     assert a.tables.keys() == b.tables.keys()
 
 
-@pytest.mark.parametrize("kw", [{}, {"correction": False, "policy": "extrapolate"},
+@pytest.mark.parametrize("kw", [{"filled": True}, {"correction": False, "policy": "extrapolate"},
                                 {"nq": 0, "trim_shape": (2, 2), "dyn_shape": (2, 2)}])
 def test_round_trip_is_exact(tmp_path, kw):
     db = make_database(**kw)

@@ -168,3 +168,34 @@ def test_the_filter_settles_again_after_an_outage_longer_than_its_settling_time(
     assert not trusted(res.flags)[back:back + n].any() and trusted(res.flags)[back + n:].all()
     short = est.run(joined(n // 2))
     assert np.flatnonzero(short.flags & FLAG_SETTLING).max() == n - 1
+
+
+def test_samples_interpolated_from_trims_the_build_filled_are_flagged_and_not_trusted():
+    """The demo database with every trim at 0 m altitude marked filled (/trim/status, as a build
+    whose trims failed there stores it): exactly the samples whose trim interpolation puts weight
+    on those nodes (altitude below the next breakpoint, 2000 m; the ground clipped to 0 m) are
+    flagged, not trusted, kept out of the snapshots and named in a warning; the estimates are the
+    same numbers. Before, nothing was flagged (a user's plant read a new engine 5.5 % off there)."""
+    from pwl.database import FILLED
+    from pwl.runtime import FLAG_TRIM_FILLED
+    log = read_log(LOGS[1])
+    n = 30000
+    cut = Log(log.time[:n], {c: v[:n] for c, v in log.channels.items()}, log.units, attrs={"dt": 0.015})
+    ref = Estimator(DB).run(cut)
+    db = GainDatabase.open(DB)
+    db.trim_status = np.zeros_like(db.trim_status)
+    db.trim_status[0] = FILLED
+    assert db.trim_grid.axes[0].name == "alt" and db.trim_grid.axes[0].values[1] == 2000.0
+    with pytest.warns(PwlWarning, match=r"samples interpolated from trims the build did not compute \(204 of 1428 "
+                                        r"nodes filled or extrapolated from their line: alt 0, Mach 0, NfR 60;"):
+        res = Estimator(db).run(cut)
+    started = (ref.flags & FLAG_NOT_STARTED) == 0
+    expect = started & (cut.channels["alt"] < 2000.0)
+    assert 0 < expect.sum() < started.sum()
+    np.testing.assert_array_equal((res.flags & FLAG_TRIM_FILLED) != 0, expect)
+    np.testing.assert_array_equal(res.flags & ~FLAG_TRIM_FILLED, ref.flags)
+    for o in ref.outputs:
+        np.testing.assert_array_equal(res.outputs[o], ref.outputs[o])
+    np.testing.assert_array_equal(trusted(res.flags), trusted(ref.flags) & ~expect)
+    assert res.counts()["trim_filled"] == expect.sum()
+    assert len(res.snapshots) < len(ref.snapshots)
