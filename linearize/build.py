@@ -472,7 +472,7 @@ def build(spec: BuildSpec, out_path, *, plant=None, executor: Executor | None = 
         kalman=kalman_arrays(fd, D),
         kalman_status=fd["status"].reshape(D), kalman_donor=fd["donor"].reshape(D), dt=spec.dt,
         schedule=proto.schedule(plant), correction=corr, log_channels=proto.log_channels(plant),
-        attrs={"model": spec.plant, "model_name": plant.name,
+        attrs={"model": spec.plant if isinstance(ref, tuple) else _plant_name(plant), "model_name": plant.name,
                "health_ranges": proto.health_ranges(plant),
                "model_parameters": plant.parameters(), "spec": spec.text,
                "tuner_method": spec.tuner_method, "tuner_metric": fd["metric"],

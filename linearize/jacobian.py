@@ -3,7 +3,7 @@
 Columns by perturbation (DESIGN.md section 3, paper 002 sec. 3.1.3): perturb one state, input or
 health parameter with the others held, run the plant's unbalanced solve, and difference the
 state derivatives f and the outputs y, z. Central differences by default; where one direction
-fails (infeasible) the other is used one-sided; a column whose both directions fail fails the
+fails (infeasible: an exception or a non-finite value) the other is used one-sided; a column whose both directions fail fails the
 point.
 """
 from __future__ import annotations
@@ -37,9 +37,26 @@ def jacobians(plant, trim: dict, h, env, method: str = "central", overrides: dic
     base = None
     one_sided = 0
 
+    sizes = {"f": x0.size, "y": len(plant.y_names), "z": len(plant.z_names)}
+
     def ev(x, u, hh):
-        f, y, z = plant.evaluate(x, u, hh, env)
-        return np.concatenate([np.ravel(f), np.ravel(y), np.ravel(z)])
+        """[f; y; z] at (x, u, hh). LinearizationError for a wrong length or integer values (a
+        plant's mistake at every point); FloatingPointError for a non-finite value (a failed
+        direction, like an exception)."""
+        parts = []
+        for (name, n), a in zip(sizes.items(), plant.evaluate(x, u, hh, env)):
+            a = np.ravel(np.asarray(a))
+            if a.size != n:
+                raise LinearizationError(f"plant.evaluate returned {a.size} values of {name}, the plant has {n}")
+            if a.dtype.kind not in "f":
+                raise LinearizationError(f"plant.evaluate returned {name} as {a.dtype}: return floats (integers "
+                                         "have no derivative to perturb)")
+            parts.append(a)
+        v = np.concatenate(parts).astype(np.float64)
+        if not np.all(np.isfinite(v)):
+            bad = [k for (k, n), a in zip(sizes.items(), parts) if not np.all(np.isfinite(a))]
+            raise FloatingPointError(f"plant.evaluate returned non-finite {', '.join(bad)}")
+        return v
 
     def evaluate_base():
         nonlocal base
@@ -60,7 +77,9 @@ def jacobians(plant, trim: dict, h, env, method: str = "central", overrides: dic
                 args[kind] = v
                 try:
                     vals[sgn] = ev(args["x"], args["u"], args["h"])
-                except Exception as e:  # a failed direction: try the other one (one-sided)
+                except LinearizationError:
+                    raise
+                except Exception as e:  # a failed direction (or NaN): try the other one (one-sided)
                     vals[sgn] = e
             ok = {s: r for s, r in vals.items() if not isinstance(r, Exception)}
             if len(ok) == 2:

@@ -112,14 +112,14 @@ def open_loop(db: GainDatabase) -> Estimator:
 
 
 def plant_of(db: GainDatabase):
-    """The database's plant, made as the build made it: ``model`` with the [model] parameters of
-    the spec the database stores (attrs ``spec``), else (a build from a plant object) with its
-    ``model_parameters``. :class:`PlantProtocolError` naming the plant when that fails (a
-    constructor that does not take its own ``parameters()``)."""
-    args = db.attrs.get("model_parameters", {})
-    if db.attrs.get("spec"):
+    """The database's plant, made as the build made it: ``model`` with the parameters the build's
+    plant reported (attrs ``model_parameters``: a plant object passed to the build may differ from
+    the stored spec's [model] parameters), else the spec's. :class:`PlantProtocolError` naming the
+    plant when that fails (a constructor that does not take its own ``parameters()``)."""
+    args = db.attrs.get("model_parameters")
+    if args is None:
         from .spec import BuildSpec
-        args = BuildSpec.parse(db.attrs["spec"], db.path).parameters
+        args = BuildSpec.parse(db.attrs["spec"], db.path).parameters if db.attrs.get("spec") else {}
     try:
         return proto.load_plant(db.attrs["model"], args)
     except (TypeError, ValueError) as e:

@@ -419,3 +419,51 @@ def test_a_health_parameter_no_sensor_sees_is_named():
     said.clear()
     _warn_unseen(pts, ["h1", "h2", "h3"], np.full(3, 0.02), said.append)
     assert not said
+
+
+def test_jacobians_take_a_nan_direction_as_failed_and_refuse_wrong_lengths_and_integers():
+    """A plant that returns NaN on one side of a perturbation (instead of raising) gets the other
+    side's one-sided difference, as one that raises does (before: every point failed with
+    'non-finite A', no variable named); an f one longer than the states shifted the rows of C..N
+    silently (the build later failed on detectability); integer outputs (all differences zero)
+    crashed the tuner selection with a LinAlgError. Reference: the one-sided difference by hand."""
+    from linearize.jacobian import LinearizationError, jacobians
+    from models.linear import LinearPlant
+    pl = LinearPlant()
+    p = np.array([1.0, 0.5])
+    env = pl.environment(p)
+    t = pl.trim(p, np.zeros(3), env)
+
+    class Side(LinearPlant):
+        def __init__(self, fail):
+            super().__init__()
+            self.fail = fail
+
+        def evaluate(self, x, u, h, env):
+            f, y, z = super().evaluate(x, u, h, env)
+            if h[1] > 0:                           # the + side of the second health parameter
+                if self.fail == "raise":
+                    raise ValueError("infeasible")
+                f = f * np.nan
+            return f, y, z
+    ref, _ = jacobians(pl, t, np.zeros(3), env)
+    nan, info = jacobians(Side("nan"), t, np.zeros(3), env)
+    raised, _ = jacobians(Side("raise"), t, np.zeros(3), env)
+    assert info["one_sided_columns"] == 1
+    for k in ref:
+        np.testing.assert_array_equal(nan[k], raised[k])
+        np.testing.assert_allclose(nan[k], ref[k], rtol=1e-6, atol=1e-9)   # a linear plant: exact either way
+
+    class Long(LinearPlant):
+        def evaluate(self, x, u, h, env):
+            f, y, z = super().evaluate(x, u, h, env)
+            return np.r_[f, 0.0], y, z
+
+    class Ints(LinearPlant):
+        def evaluate(self, x, u, h, env):
+            f, y, z = super().evaluate(x, u, h, env)
+            return f, np.rint(y).astype(int), z
+    with pytest.raises(LinearizationError, match="plant.evaluate returned 3 values of f, the plant has 2"):
+        jacobians(Long(), t, np.zeros(3), env)
+    with pytest.raises(LinearizationError, match="plant.evaluate returned y as int64: return floats"):
+        jacobians(Ints(), t, np.zeros(3), env)

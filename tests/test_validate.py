@@ -77,6 +77,22 @@ def closed_form(p, step, time, dt, t_step=1.0):
     return out0 + xp @ C.T + du @ D.T, out0 + xm @ C.T + du @ D.T
 
 
+def test_validate_makes_the_plant_object_the_build_was_given(tmp_path):
+    """A build from a plant object whose parameters are not the spec's (A[0][0] -3 instead of -2):
+    validate made the plant again from the stored spec's [model] parameters and so checked the
+    database against another plant ("passed"); now from the plant's own parameters, and the
+    record names its class."""
+    pl = LinearPlant(A=[[-3.0, 0.5], [0.3, -1.0]])
+    out = tmp_path / "obj.h5"
+    build(BuildSpec.load(LINEAR_SPEC), out, plant=pl, executor=SerialExecutor(), progress=False, log=lambda *a: None)
+    db = GainDatabase.open(out)
+    assert db.attrs["model"] == "models.linear:LinearPlant"
+    again = V.plant_of(db)
+    assert again.parameters() == pl.parameters() != LinearPlant().parameters()
+    errs, _, failed = V.steady_state(db, n=3, settle_steps=1500)
+    assert not failed and np.abs(errs).max() < 1e-9
+
+
 def test_linear_plant_transient_equals_the_closed_form(linear_db):
     tr = V.fuel_step(linear_db, step=0.05, seconds=4.0)
     plant, model = closed_form(tr["p"], 0.05, tr["time"], linear_db.dt)
