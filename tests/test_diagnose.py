@@ -521,3 +521,40 @@ def test_missing_names_a_regime_not_flown_and_sensors_lost_in_a_flown_one():
     es.channels = [f"c{j}@{r}" for r in range(2) for j in range(3)]
     rows = diagnose_engine(es, np.eye(6) * 1e-6, DiagnosisConfig())
     assert [r.missing for r in rows] == [""] * 5 + ["regime:1", "c1", ""]
+
+
+def test_flights_are_ordered_by_real_time_then_flight_index():
+    """Flight times compared as text put '9:30' after '14:45', 500 after 14500 and a flight
+    without a time first (three faults of a 10-engine fleet lost, a false recovery, exit 0; an
+    IndexError where the numbers were then out of order). Now times are read as numbers or
+    date-times; flights without a readable time, among flights with one, are ordered by
+    flight_index with a note; a date repeated by two flights a day is not a mixed folder."""
+    from datetime import datetime, timezone
+    from pwl.fleet.diagnose import flight_seconds, group_engines, in_flight_order, mixed_engines, order_notes
+    assert flight_seconds("500") == 500.0 and flight_seconds("") != flight_seconds("")   # NaN
+    assert flight_seconds("2026-01-01 9:30") == datetime(2026, 1, 1, 9, 30, tzinfo=timezone.utc).timestamp()
+    assert flight_seconds("2026-01-01T10:30:00+01:00") == flight_seconds("2026-01-01 9:30")
+    assert flight_seconds("2026-01-01T09:30:00Z") == flight_seconds("2026-01-01 9:30")
+    assert np.isnan(flight_seconds("01/02/2026"))            # day or month first: not guessed
+
+    from types import SimpleNamespace
+    def rec(t, k, name=None):
+        snap = SimpleNamespace(t0=np.array([5.0]), samples=np.array([100]), mean=np.array([[k, len(name or "")]]))
+        return FlightRecord("E1", (t, k, []), name or f"E1/flight_{k}.h5", f"f{k}", snap)
+    def order(recs):
+        return [r.index for r in in_flight_order(recs)[0]]
+    counters = [rec(str(500 * k), k) for k in (11, 3, 0, 29, 1)]
+    assert order(counters) == [0, 1, 3, 11, 29] and not in_flight_order(counters)[1]
+    clock = [rec("2026-01-01 14:45", 2), rec("2026-01-01 9:30", 1), rec("2025-12-31 23:10", 0)]
+    assert order(clock) == [0, 1, 2]
+    some = [rec("" if k in (3, 4) else f"2026-01-{k + 1:02d}", k) for k in range(6)][::-1]
+    recs, note = in_flight_order(some)
+    assert [r.index for r in recs] == list(range(6)) and "2 of its 6 flights have no readable flight_time" in note
+    assert "ordered by flight_index" in order_notes(some)[0]
+    back = [rec("2026-01-01", 1), rec("2026-01-02", 0)]
+    assert "flight_index 1) before" in in_flight_order(back)[1]
+    daily = [rec("2026-01-01", 0), rec("2026-01-01", 1), rec("2026-01-02", 2)]
+    assert order(daily) == [0, 1, 2] and mixed_engines(daily) == []
+    twice = daily + [rec("2026-01-02", 2, "E1/flight_2_v2.h5")]
+    assert "E1/flight_2_v2.h5 and E1/flight_2.h5" in mixed_engines(twice)[0]
+    assert [r.source for r in group_engines(twice)["E1"]][-2:] == ["E1/flight_2.h5", "E1/flight_2_v2.h5"]

@@ -239,7 +239,7 @@ def test_engines_named_from_file_names_and_mixed_engines_warned(scenario, tmp_pa
     assert "repeat" not in capsys.readouterr().err
     one = [dataclasses.replace(r, engine="flat") for r in scenario["records"] if r.engine in ("ESN001", "ESN005")]
     (line,) = mixed_engines(one)
-    assert line.startswith(f"engine flat: {FLIGHTS} of its {2 * FLIGHTS} flights repeat another's flight time")
+    assert line.startswith(f"engine flat: {FLIGHTS} of its {2 * FLIGHTS} flights repeat another's flight index")
 
 
 def test_trend_against_its_fleet_equals_the_fleet_diagnosis(scenario, capsys):

@@ -66,12 +66,17 @@ def run(args) -> int:
 
 
 def results_files(paths) -> list[str]:
-    out = []
+    """The results files of ``paths`` (files, or folders walked recursively), each file once: a
+    folder given twice, or reached again through a symbolic link (a link to a parent folder
+    repeated its files thousands of times), is read once."""
+    out, seen = [], set()
     for p in paths:
-        if os.path.isdir(p):
-            out += sorted(glob.glob(os.path.join(p, "**", "*.estimates.h5"), recursive=True))
-        else:
-            out.append(p)
+        found = sorted(glob.glob(os.path.join(p, "**", "*.estimates.h5"), recursive=True)) if os.path.isdir(p) else [p]
+        for f in found:
+            real = os.path.realpath(f)
+            if real not in seen:
+                seen.add(real)
+                out.append(f)
     return out
 
 
@@ -111,7 +116,8 @@ def run_diagnose(args) -> int:
     import numpy as np
 
     from ..database import GainDatabase
-    from ..fleet.diagnose import DiagnosisConfig, copies, diagnose_fleet, mixed_engines, recoveries, write_diagnosis
+    from ..fleet.diagnose import (DiagnosisConfig, copies, diagnose_fleet, mixed_engines, order_notes, recoveries,
+                                  write_diagnosis)
     from ..fleet.trending import detail_units, readable_detail
 
     check_output(args.output)
@@ -129,7 +135,7 @@ def run_diagnose(args) -> int:
     if not records:
         print("pwl fleet diagnose: no readable results files", file=sys.stderr)
         return 2
-    for line in copies(records) + mixed_engines(records):
+    for line in copies(records) + mixed_engines(records) + order_notes(records):
         print(f"pwl: warning: {line}", file=sys.stderr)
     db_path = database_of(records, args.database)
     cfg = DiagnosisConfig()

@@ -21,7 +21,7 @@ def run(args) -> int:
     import sys
 
     from ..database import GainDatabase
-    from ..fleet.diagnose import copies, group_engines, mixed_engines
+    from ..fleet.diagnose import copies, group_engines, mixed_engines, order_notes
     from ..fleet.trending import engine_trend, plot_trend
     from .fleet import database_of, read_flights, results_files
     from .output import check_output, plot_or_note
@@ -32,11 +32,11 @@ def run(args) -> int:
         print("pwl trend: a trend needs at least two flights", file=sys.stderr)
         return 2
     db = GainDatabase.open(database_of(records, args.database))
-    for line in copies(records) + mixed_engines(records):
+    for line in copies(records) + mixed_engines(records) + order_notes(records):
         print(f"pwl: warning: {line}", file=sys.stderr)
-    fleet = read_flights(results_files(args.fleet))[0] if args.fleet else None
+    fleet, fleet_skipped = read_flights(results_files(args.fleet)) if args.fleet else (None, [])
     engines = group_engines(records)
-    status = int(bool(skipped))       # as pwl fleet diagnose: a file it could not read is a finding
+    status = int(bool(skipped or fleet_skipped))   # as pwl fleet diagnose: a file it could not read is a finding
     for i, (eng, recs) in enumerate(engines.items()):
         tr = engine_trend(recs, db, fleet=fleet)
         print(("\n" if i else "") + tr.table())

@@ -165,9 +165,85 @@ class FlightRecord:
     mode: str = ""
     windows: dict = field(default_factory=dict)     # regime -> window index (assign_regimes)
 
+    @property
+    def time(self) -> float:
+        """The flight time in seconds (:func:`flight_seconds`; NaN when missing or unreadable)."""
+        return flight_seconds(self.order[0])
+
+    @property
+    def index(self) -> int:
+        """The log's flight_index (-1 when none)."""
+        return self.order[1]
+
 
 def _natural(s: str):
     return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", s)]
+
+
+#: date-times that ISO 8601 (datetime.fromisoformat) does not read but data systems write; day
+#: first or month first (01/02/2026) is ambiguous and is not read
+_TIME_FORMATS = ("%Y-%m-%d %H:%M", "%Y-%m-%d %H:%M:%S", "%Y-%m-%d %H:%M:%S.%f", "%Y/%m/%d", "%Y/%m/%d %H:%M",
+                 "%Y/%m/%d %H:%M:%S")
+
+
+def flight_seconds(text: str) -> float:
+    """A flight_time attribute as seconds: a number as it is (a counter, seconds), a date-time
+    (ISO 8601, or :data:`_TIME_FORMATS`; without a zone taken as UTC) as seconds since 1970;
+    NaN when empty or unreadable. Compared as text, '9:30' came after '14:45', 500 after 14500
+    and float seconds or day-first dates across months out of order."""
+    from datetime import datetime, timezone
+    text = str(text).strip()
+    if not text:
+        return float("nan")
+    try:
+        v = float(text)
+        return v if np.isfinite(v) else float("nan")
+    except ValueError:
+        pass
+    for parse in [datetime.fromisoformat] + [lambda t, f=f: datetime.strptime(t, f) for f in _TIME_FORMATS]:
+        try:
+            t = parse(text.replace("Z", "+00:00"))
+        except ValueError:
+            continue
+        return (t if t.tzinfo else t.replace(tzinfo=timezone.utc)).timestamp()
+    return float("nan")
+
+
+def in_flight_order(flights: list[FlightRecord]) -> tuple[list[FlightRecord], str]:
+    """One engine's flights in time order, and a note ("" when none) when the order had to be
+    chosen: by flight time (:func:`flight_seconds`) when every flight has a readable one, then
+    flight_index, then the file name in natural order (flight_2 before flight_10); else by
+    flight_index when every flight has a distinct one; else by file name. The note names flights
+    without a readable time, and a flight time order that contradicts flight_index."""
+    def nat(r):
+        return _natural(os.path.basename(r.source))
+    times = [r.time for r in flights]
+    idx = [r.index for r in flights]
+    indexed = min(idx, default=0) >= 0 and len(set(idx)) == len(idx)
+    timeless = [r for r, t in zip(flights, times) if not np.isfinite(t)]
+    if not timeless:
+        out = sorted(flights, key=lambda r: (r.time, r.index, nat(r)))
+        back = [(a, b) for a, b in zip(out, out[1:]) if a.index > b.index >= 0] if indexed else []
+        note = (f"its flight times order {back[0][0].source} (flight_index {back[0][0].index}) before "
+                f"{back[0][1].source} ({back[0][1].index}): ordered by flight time" if back else "")
+        return out, note
+    why = (f"{len(timeless)} of its {len(flights)} flights have no readable flight_time "
+           f"({timeless[0].source}: {timeless[0].order[0]!r})")
+    if indexed:
+        return sorted(flights, key=lambda r: (r.index, nat(r))), (
+            f"{why}: ordered by flight_index" if len(timeless) < len(flights) else "")
+    return sorted(flights, key=nat), f"{why} and no distinct flight_index: ordered by file name" if (
+        len(timeless) < len(flights) or min(idx, default=-1) >= 0) else ""
+
+
+def order_notes(records: list[FlightRecord]) -> list[str]:
+    """A line for every engine whose flight order had to be chosen (:func:`in_flight_order`)."""
+    out = []
+    for engine, flights in group_engines(records).items():
+        note = in_flight_order(flights)[1]
+        if note:
+            out.append(f"engine {engine}: {note}")
+    return out
 
 
 def read_flight(path, engine_pattern: str | None = None) -> FlightRecord:
@@ -196,8 +272,8 @@ def read_flight(path, engine_pattern: str | None = None) -> FlightRecord:
             snaps = Snapshots.load(f["snapshots"])
             stored = attr_str(f, "engine")
             engine = named or stored or os.path.basename(os.path.dirname(os.path.abspath(path)))
-            ftime = attr_str(f, "flight_time") or ""
-            fidx = f.attrs.get("flight_index", -1)
+            ftime = attr_str(f, "flight_time", "")        # (a counter's 0 is a time)
+            fidx = _whole(f.attrs.get("flight_index", -1), path)
             prov = [attr_str(f, k) or "" for k in ("database", "database_digest", "mode")]
     except (DiagnosisError, SealError) as e:
         raise DiagnosisError(str(e)) from None
@@ -208,21 +284,39 @@ def read_flight(path, engine_pattern: str | None = None) -> FlightRecord:
                                  f"attribute {stored!r}: diagnosed as {named!r}"), stacklevel=2)
     name = os.path.basename(path)
     label = name.split(".estimates")[0]
-    return FlightRecord(str(engine), (str(ftime), int(fidx), _natural(name)), path, label, snaps, *prov)
+    return FlightRecord(str(engine), (str(ftime), fidx, _natural(name)), path, label, snaps, *prov)
+
+
+def _whole(v, path) -> int:
+    """A flight_index attribute as an int; -1 (none), named in a PwlWarning, when it is not a
+    whole number (text such as 'F003', NaN)."""
+    try:
+        f = float(np.asarray(v).reshape(-1)[0] if np.ndim(v) else v)
+        if f == int(f):
+            return int(f)
+    except (TypeError, ValueError, OverflowError, IndexError):
+        pass
+    warnings.warn(PwlWarning(f"{path}: flight_index {v!r} is not a whole number: ignored"), stacklevel=3)
+    return -1
 
 
 def mixed_engines(records: list[FlightRecord]) -> list[str]:
-    """A line for every engine whose flights repeat a flight time or flight index: most likely
-    several engines' logs in one folder, without an ``engine`` attribute, diagnosed as one."""
+    """A line for every engine whose flights repeat a flight index (or, without indices, a flight
+    time): several engines' logs in one folder, without an ``engine`` attribute, diagnosed as one;
+    or one flight exported twice (the first pair named). Flight times alone may repeat (a date
+    without the time of day: two flights a day)."""
     out = []
     for engine, flights in group_engines(records).items():
-        for what, key in (("flight time", lambda r: r.order[0]), ("flight index", lambda r: r.order[1])):
-            keys = [key(r) for r in flights if key(r) not in ("", -1)]
-            if len(keys) > len(set(keys)):
-                out.append(f"engine {engine}: {len(keys) - len(set(keys))} of its {len(flights)} flights repeat "
-                           f"another's {what}: several engines' logs in one folder? Give each engine its own "
-                           "folder or an 'engine' attribute, or name it from the file names (--engine-pattern)")
-                break
+        indexed = all(r.index >= 0 for r in flights)
+        what, key = ("flight index", lambda r: r.index) if indexed else ("flight time", lambda r: r.order[0])
+        seen: dict = {}
+        pairs = [(seen[k], r) for r in flights if (k := key(r)) not in ("", -1) and seen.setdefault(k, r) is not r]
+        if pairs:
+            a, b = pairs[0]
+            out.append(f"engine {engine}: {len(pairs)} of its {len(flights)} flights repeat another's {what} "
+                       f"({b.source} and {a.source}): several engines' logs in one folder, or one flight exported "
+                       "twice? Give each engine its own folder or an 'engine' attribute, or name it from the file "
+                       "names (--engine-pattern); remove a flight's second export")
     return out
 
 
@@ -280,7 +374,7 @@ class EngineSeries:
 
 def engine_series(flights: list[FlightRecord], sig: Signatures, n_regimes: int) -> EngineSeries:
     """Deviations of every flight and regime (NaN where a flight has no window in a regime)."""
-    flights = sorted(flights, key=lambda r: r.order)
+    flights = in_flight_order(flights)[0]
     m, ncol, R = len(sig.channels), len(sig.columns), n_regimes
     n = len(flights)
     D, SE = np.full((n, m * R), np.nan), np.full((n, m * R), np.nan)
@@ -358,12 +452,12 @@ def noise_covariance(series: list[EngineSeries], floor: float) -> np.ndarray:
 
 
 def flight_numbers(es: EngineSeries) -> np.ndarray:
-    """The flights' numbers (n,): the logs' flight_index when every flight has a distinct one (a
-    missing flight then leaves a gap, and onsets and rates are in the logs' numbering), else
-    their positions."""
-    fidx = [f.order[1] for f in es.flights]
-    n = len(fidx)
-    return np.array(fidx if min(fidx, default=-1) >= 0 and len(set(fidx)) == n else range(n), float)
+    """The flights' numbers (n,): the logs' flight_index when every flight has one and they do
+    not decrease in time order (a missing flight then leaves a gap, and onsets and rates are in
+    the logs' numbering; a flight exported twice shares its number), else their positions."""
+    fidx = np.array([f.index for f in es.flights], float)
+    ok = fidx.size and fidx.min() >= 0 and np.all(np.diff(fidx) >= 0)
+    return fidx if ok else np.arange(fidx.size, dtype=float)
 
 
 @dataclass
@@ -1393,11 +1487,11 @@ def _copy_key(r: FlightRecord) -> tuple:
 
 
 def _first_of_each_flight(records: list[FlightRecord]) -> tuple[list, dict]:
-    """(the records without copies, in time order; copy -> the record it repeats): a copy has the
-    :func:`_copy_key` of a record before it."""
+    """(the records without copies; copy -> the record it repeats): a copy has the
+    :func:`_copy_key` of a record before it in natural order of the file paths."""
     first: dict = {}
     kept, repeats = [], {}
-    for r in sorted(records, key=lambda r: r.order):
+    for r in sorted(records, key=lambda r: _natural(r.source)):      # 'flight_3' before 'flight_3 copy'
         k = _copy_key(r)
         if k in first:
             repeats[r.source] = first[k]
@@ -1421,7 +1515,7 @@ def group_engines(records: list[FlightRecord]) -> dict[str, list[FlightRecord]]:
     out: dict[str, list[FlightRecord]] = {}
     for r in _first_of_each_flight(records)[0]:
         out.setdefault(r.engine, []).append(r)
-    return {k: out[k] for k in sorted(out, key=_natural)}
+    return {k: in_flight_order(out[k])[0] for k in sorted(out, key=_natural)}
 
 
 def prepare(records: list[FlightRecord], db: GainDatabase) -> tuple[Signatures, np.ndarray]:

@@ -168,8 +168,8 @@ def engine_trend(records: list[FlightRecord], db: GainDatabase,
     normal wear and baseline level (:func:`pwl.fleet.diagnose.wear_reference`,
     :func:`~pwl.fleet.diagnose.level_reference`). Alone, against its own scatter (which
     holds an intermittent fault's toggles) and ``min_rate`` for wear."""
-    mine = {r.source for r in records}
-    others = [r for r in (fleet or []) if r.source not in mine]
+    mine = {os.path.realpath(r.source) for r in records}     # however the paths were spelt
+    others = [r for r in (fleet or []) if os.path.realpath(r.source) not in mine]
     sig, centers = prepare(records + others, db)
     es = engine_series(records, sig, len(centers))
     wear = level = None
