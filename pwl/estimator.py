@@ -176,6 +176,14 @@ class Estimator:
         deviations since the value froze -- or at once if it was a noisy signal (its changes
         averaged more than half a standard deviation) and the other sensors still change -- it is
         left out of the update (FLAG_STUCK) until its value changes. ``float("inf")``: never.
+        The same time makes an input that repeats one value exactly while the operating point
+        moves count as frozen (FLAG_HELD_INPUT, :meth:`_check_frozen_inputs`), except the inputs
+        of ``may_hold``.
+    may_hold : sequence of str
+        Inputs (``db.names["u"]``) that may legitimately hold one value exactly while the engine
+        moves -- variable geometry at a mechanical stop, a closed bleed valve -- and so are never
+        taken for a frozen word (default none; recorded in :attr:`provenance`). The stuck-sensor
+        test and the other inputs' frozen-input test stay as they are.
     settle : float, optional
         Seconds from the filter's first valid sample during which its estimates are flagged
         FLAG_SETTLING (converging from q0: not trusted, not in the snapshots' estimates); default 3 time constants
@@ -198,7 +206,7 @@ class Estimator:
     def __init__(self, db, mode: str = "steady", *, q0=None, bias: dict | None = None,
                  health_std: bool = True, resample: bool = False, channel_map=None,
                  health_hold: float = HEALTH_HOLD_RATIO, misfit_sigmas: float = MISFIT_SIGMAS,
-                 stuck_after: float = STUCK_AFTER, settle: float | None = None):
+                 stuck_after: float = STUCK_AFTER, may_hold=(), settle: float | None = None):
         if mode not in MODES:
             raise UsageError(f"estimator mode {mode!r}: one of {', '.join(MODES)}")
         self.mode = mode
@@ -250,6 +258,17 @@ class Estimator:
         self._readmit_n = max(1, int(np.ceil(default_settle / self.db.dt)))
         self._model = self.pm.record(self.db.tuner["V_pinv"], np.stack([misfit_sigmas * sd, STUCK_SIGMAS * sd, sd]),
                                      int(stuck_n), int(np.ceil(self.settle / self.db.dt)), NEVER)
+        names = (may_hold,) if isinstance(may_hold, str) else tuple(may_hold)
+        unknown = [c for c in names if c not in db.names["u"]]
+        if unknown:
+            raise UsageError(f"may_hold {', '.join(map(repr, unknown))}: not an input of {db.path} (its inputs: "
+                             f"{', '.join(db.names['u'])}); only inputs are tested for a value held while the "
+                             "engine moves")
+        self.may_hold = tuple(c for c in db.names["u"] if c in names)
+        #: (nu,) samples an input must repeat one value exactly, while the operating point moves, to
+        #: count as frozen: the stuck detector's, inf for an input that may hold (batch and Stream)
+        self._hold_n = np.array([np.inf if c in self.may_hold else float(self._model.stuck_n)
+                                 for c in db.names["u"]])
         self._grids = self.pm.grids(self.db)
         hr = db.attrs.get("health_ranges") or {}
         self._h_range = tuple(np.array([hr.get(h, (-np.inf, np.inf))[i] for h in db.names["h"]],
@@ -388,6 +407,7 @@ class Estimator:
         self._lag_sums = np.zeros(6)   # the inlet pressure's lag behind the air data (air_data_lag)
         self.frozen = {}         # input -> [samples frozen while the engine moved, the value] (_check_frozen_inputs)
         self._frozen_spans = []  # their (first, last) times
+        self._logged = np.zeros(len(self.db.names["y"]), dtype=bool)   # sensors with a value, not NaN (_split)
         self._fit_rows, self._misfit_in = 0, {}   # samples where the model should fit, misfits there
         self._misfit_runs = np.zeros((2, len(self.db.names["y"])))   # longest misfit run, the run going on
         na = len(self.db.trim_grid.axes)   # samples outside the trim grid; each axis's extremes (_accumulate)
@@ -543,15 +563,29 @@ class Estimator:
         needed = set(self.pm.schedule_channels)      # the filter cannot start without them
         return [c for c in self.db.names["y"] if c not in have and c not in needed]
 
-    def _warn_absent(self, log: Log) -> None:
-        absent = self.absent_sensors(log)
-        text = [log.attrs["left_out"][c] for c in absent if c in log.attrs.get("left_out", {})]
-        if absent:
-            warnings.warn(f"{log.path}: no {', '.join(map(repr, absent))} channel"
-                          f"{''.join(f' ({t})' for t in text)}: run without "
-                          f"{'that sensor' if len(absent) == 1 else 'those sensors'} (missing on "
-                          "every sample; a channel map renames a channel logged under another name)",
-                          PwlWarning, stacklevel=3)
+    def dead_sensors(self, log: Log) -> list[str]:
+        """The sensed outputs that a log has but that were NaN on every sample run since the last
+        :meth:`reset` (a sensor dead for the whole log, a column never recorded): they run as
+        absent ones do (:meth:`absent_sensors`; scheduling channels left out, as there). Known
+        once the log has run (:meth:`_split` notes the sensors with a value)."""
+        gone = set(self.absent_sensors(log)) | set(self.pm.schedule_channels)
+        return [c for c, seen in zip(self.db.names["y"], self._logged) if not seen and c not in gone]
+
+    def _warn_absent(self, log: Log, dead: bool = False) -> None:
+        """Warn of the sensors run without: the log's absent ones (:meth:`absent_sensors`), or
+        with ``dead``, after the run, those it has NaN on every sample (:meth:`dead_sensors`)."""
+        absent = self.dead_sensors(log) if dead else self.absent_sensors(log)
+        if not absent:
+            return
+        names, one = ", ".join(map(repr, absent)), len(absent) == 1
+        if dead:
+            what = f"{'sensor' if one else 'sensors'} {names} NaN on all {len(log)} samples (dead for the whole log?)"
+        else:
+            text = [log.attrs["left_out"][c] for c in absent if c in log.attrs.get("left_out", {})]
+            what = f"no {names} channel{''.join(f' ({t})' for t in text)}"
+        warnings.warn(f"{log.path}: {what}: run without {'that sensor' if one else 'those sensors'} (missing on "
+                      "every sample" + ("" if dead else "; a channel map renames a channel logged under another name")
+                      + ")", PwlWarning, stacklevel=3)
 
     #: values of each channel kept per run chunk for the warnings' typical values
     EVIDENCE = 2000
@@ -629,19 +663,19 @@ class Estimator:
 
     def _check_frozen_inputs(self, flags, t, U, S) -> None:
         """Flag FLAG_HELD_INPUT on the runs where an input repeats one value exactly for the stuck
-        detector's time or longer while a scheduling channel moves more than SPIKE_FRACTION of its
-        plausible span (U (n, nu), S (n, ns) as from :meth:`_split`): a frozen word or a meter at
-        the end of its range, whose value is not the engine's. Fuel flow clipped at 2.0 kg/s
+        detector's time or longer (:attr:`_hold_n`: never for the inputs of ``may_hold``) while a
+        scheduling channel moves more than SPIKE_FRACTION of its plausible span (U (n, nu), S (n,
+        ns) as from :meth:`_split`, t (n,) s): a frozen word or a meter at the end of its range,
+        whose value is not the engine's. Fuel flow clipped at 2.0 kg/s
         through the degraded demo flight's take-off read T40 up to 7.6 % low, frozen for a minute
         of its descent 4.9 % RMS (two sensors blamed and dropped), both trusted; the clean demo and
         seed-7 flights repeat their fuel flow only where altitude and Mach hold still (Nf moves
         1.5 % of its span with its noise)."""
-        n = self._model.stuck_n
         lim = self._limits_of(2)
         with np.errstate(over="ignore", invalid="ignore"):
             span = SPIKE_FRACTION * (lim[1] - lim[0])
             S = np.where((S >= lim[0]) & (S <= lim[1]), S, np.nan)      # held (spikes, implausible): no move
-        for j, c in enumerate(self.db.names["u"]):
+        for j, (c, n) in enumerate(zip(self.db.names["u"], self._hold_n)):
             x = U[:, j]
             starts, stops = true_runs(np.concatenate([[False], x[1:] == x[:-1]]))
             for a, b in zip(starts - 1, stops):      # a run: its first value and its repeats
@@ -703,7 +737,9 @@ class Estimator:
         for c, (k, v) in self.frozen.items():
             warnings.warn(f"{path}: input {c!r} held {v:.6g} {self.channel_units.get(c, '')} exactly on {k} of {n} "
                           f"samples ({k * self.db.dt:.3g} s) while the operating point moved: a frozen word, or a meter "
-                          "at the end of its range? Those samples are not trusted", PwlWarning, stacklevel=4)
+                          "at the end of its range? Those samples are not trusted. An input that may hold a value "
+                          f"(variable geometry at a stop, a closed valve): Estimator(may_hold=({c!r},)), pwl run "
+                          f"--may-hold {c}", PwlWarning, stacklevel=4)
         if self.air_data >= max(n, 1) / 100:
             kept = np.concatenate(self._evidence["air_data"])
             _, alt, mach, p2 = kept[np.argsort(kept[:, 0])[kept.shape[0] // 2]]      # the median disagreement
@@ -766,6 +802,7 @@ class Estimator:
         TH, DE = (np.ascontiguousarray(cols[:, -2]), np.ascontiguousarray(cols[:, -1])) \
             if pm.theta_channel else (None, None)
         Y = Y[a - wide.start: b - wide.start]
+        self._logged |= ~np.isnan(Y).all(axis=0)
         Y[:, [db.names["y"].index(c) for c in self.failed]] = np.nan      # failed for this log
         t = log.time[a:b]
         for t0, t1 in self._blind:        # an input frozen there: no measurement update
@@ -819,6 +856,7 @@ class Estimator:
             res = self._second_opinions(log.path, lambda: self._run_log(log, True))
         else:
             res = self._run_log(log, False)
+        self._warn_absent(log, dead=True)
         self._warn_channels(log.path, len(res.time))
         return res
 
@@ -1040,7 +1078,8 @@ class Estimator:
             ``database`` (absolute path, or ``"<memory>"``), ``database_digest`` (sha256 hex),
             ``mode`` (the estimator mode, ``+bias`` with bias tables, ``+map:<digest>`` with a
             channel map, ``+hold:3.5`` etc. for a health hold, misfit gate or stuck time not
-            the default), ``pwl_version``, ``created`` (ISO 8601 UTC, seconds).
+            the default, ``+may_hold:A8,B`` for inputs that may hold), ``pwl_version``,
+            ``created`` (ISO 8601 UTC, seconds).
         """
         import datetime
 
@@ -1049,6 +1088,8 @@ class Estimator:
         if self.bias:
             mode += "+bias"
         mode += "".join(f"+{k}:{v:g}" for k, (v, d) in self._checks.items() if v != d)
+        if self.may_hold:
+            mode += "+may_hold:" + ",".join(self.may_hold)
         if self.channel_map is not None:   # another map, another reading of the same log
             from .h5io import file_digest
             cm = self.channel_map.path
@@ -1225,6 +1266,7 @@ class Estimator:
             self._warn_absent(head)
             args = (log_path, out_path, head, part, chunk, keep, every, self.provenance | record, units, compression)
             totals, snaps = self._second_opinions(log_path, lambda: self._write_chunks(*args))
+            self._warn_absent(head, dead=True)
             self._warn_channels(log_path, len(head))
         return totals.counts | {"snapshots": len(snaps), "missing_channels": dict(self.missing), "misfit_channels":
                                 dict(self.misfit), "failed_channels": list(self.failed),

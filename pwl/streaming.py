@@ -21,7 +21,8 @@ the row's check (0.1 us), the step loop for one row (0.7 us; the kernel's record
 reference, :mod:`pwl.byref`), the air-data test (0.1 us). An input frozen while the engine moves
 (:meth:`pwl.Estimator._check_frozen_inputs`) is found as it goes: from the stuck detector's time
 into the run on, as soon as a scheduling channel has moved, the steps are flagged FLAG_HELD_INPUT
-and make no measurement update (a log run, seeing the whole run, does so from its first sample).
+and make no measurement update (a log run, seeing the whole run, does so from its first sample);
+never for the estimator's ``may_hold`` inputs.
 What needs the whole log is a log run's only: the second opinions
 (``Estimator._second_opinions``: a stream leaves a misfitting sensor out for as long as it
 misfits). Samples that arrive in packets (a data bus, a file being written) run at batch speed through
@@ -111,11 +112,13 @@ def _report(st):
 @njit(cache=True, nogil=True, inline="always")
 def _frozen_inputs(U, S, run, still):
     """The stream's frozen-input test, causal (:meth:`pwl.Estimator._check_frozen_inputs`): True
-    when an input of ``U`` (1, nu) has repeated one value exactly for ``still[0]`` samples or more
-    (the stuck detector's time) while a scheduling channel of ``S`` (1, ns; NaN: held, no move)
-    moved more than ``still[1 + c]`` within that run. ``run`` (2 + 2 ns, nu): each input's last
-    value, its run's length and the run's minima and maxima of S, updated."""
+    when an input j of ``U`` (1, nu) has repeated one value exactly for ``still[0][j]`` samples or
+    more (``Estimator._hold_n``: the stuck detector's time, inf for an input that may hold) while a
+    scheduling channel c of ``S`` (1, ns; NaN: held, no move) moved more than ``still[1][c]``
+    (its units) within that run. ``run`` (2 + 2 ns, nu): each input's last value, its run's length
+    and the run's minima and maxima of S, updated."""
     ns = S.shape[1]
+    hold_n, move = still
     frozen = False
     for j in range(U.shape[1]):
         if U[0, j] == run[0, j]:
@@ -130,7 +133,7 @@ def _frozen_inputs(U, S, run, still):
             if S[0, c] == S[0, c]:
                 run[2 + c, j] = min(run[2 + c, j], S[0, c])
                 run[2 + ns + c, j] = max(run[2 + ns + c, j], S[0, c])
-            if run[1, j] >= still[0] and run[2 + ns + c, j] - run[2 + c, j] > still[1 + c]:
+            if run[1, j] >= hold_n[j] and run[2 + ns + c, j] - run[2 + c, j] > move[c]:
                 frozen = True
     return frozen
 
@@ -217,7 +220,7 @@ class Stream:
         ja, jm, ka, kp = est._air if est._air is not None else (-1, -1, 1.0, 1.0)
         air = np.array([ja, jm, ka, kp * (db.correction.P_std if db.correction else 1.0), AIR_DATA_TOLERANCE])
         self._run = np.zeros((2 + 2 * ns, nu))
-        still = np.concatenate([[est._model.stuck_n], SPIKE_FRACTION * span[:ns]])
+        still = (np.ascontiguousarray(est._hold_n), SPIKE_FRACTION * span[:ns])
         self._st = _StreamState(Kernel(io, *records, work), tuple(index) + th + (osl,), post, self._jump, air,
                                 self._run, still)
         self._stop = FLAG_TRIM_OUTSIDE | FLAG_DYN_OUTSIDE if db.policy == "error" else 0

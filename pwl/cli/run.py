@@ -64,11 +64,20 @@ def add_arguments(p):
                    help="a sensor whose value stays exactly the same this long (and whose prediction "
                         "moved, or which used to change every sample) is stuck and left out "
                         "(default %(default)g; inf: never)")
+    p.add_argument("--may-hold", type=may_hold, default=(), metavar="INPUT[,INPUT]",
+                   help="inputs that may legitimately hold one value exactly while altitude, Mach or the "
+                        "engine move (variable geometry at a stop, a closed bleed valve): never flagged as a "
+                        "frozen word or a meter at the end of its range (input held); default: none")
     p.add_argument("--health-hold", type=float, default=HEALTH_HOLD_RATIO, metavar="RATIO",
                    help="hold the health estimates while a sensor is out without which their "
                         "standard deviation grows more than RATIO times (default %(default)g; inf: never)")
     p.add_argument("--online", action="store_true", help="the same as --mode online")
     p.add_argument("--zones", action="store_true", help="the same as --mode zones")
+
+
+def may_hold(text: str) -> tuple:
+    """The input names of ``--may-hold A8,B`` (a tuple: the checks travel to the workers hashed)."""
+    return tuple(c.strip() for c in text.split(",") if c.strip())
 
 
 def run_mode(args) -> str:
@@ -135,7 +144,7 @@ def run(args) -> int:
     db = GainDatabase.open(args.database)  # fail early, with the named error, on a bad database
     mode = run_mode(args)
     checks = {"misfit_sigmas": args.misfit_sigmas, "stuck_after": args.stuck_after,
-              "health_hold": args.health_hold}
+              "health_hold": args.health_hold, "may_hold": args.may_hold}
     est = Estimator(db, mode, channel_map=args.channel_map, **checks)   # and on options it cannot serve
     select_outputs(est.names, args.outputs, where="--outputs")
     check_every(args.every)
