@@ -146,6 +146,44 @@ def test_a_step_is_detected_isolated_and_sized(cls, theta):
     np.testing.assert_allclose(est, theta, atol=4 * last.magnitude_std + 1e-12, rtol=0.1)
 
 
+def test_a_fault_that_began_in_flight_is_left_out_of_its_onset_flight(monkeypatch):
+    """A fan loss that began during flight 6: its cruise window (regime 1) saw part of it, its
+    ground-idle window before take-off (regime 0) none. Without telling that flight apart the
+    half-changed flight made a 'drift', then a 'recovery' and a new baseline (a fan loss of 2 %
+    missed from flight 9 on; a bird strike at climb read as lpc+sensor:Nf, a cruise loss as the
+    wrong pair). Now the flight is a transition (its regimes moved by different shares), left out,
+    and the fault is the step it is from flight 7, onset 6. A drift (every regime the same share)
+    is not a transition. Reference: the same fault with flight 6 removed by hand."""
+    import pwl.fleet.diagnose as dg
+    rng = np.random.default_rng(11)
+    S3 = synthetic_signatures(m=3)
+    S = np.vstack([S3, S3 * 1.3])                      # 3 channels at idle, then at cruise
+    sd, n = 1e-3, 14
+    bank = {h.name: h for h in hypotheses(COLUMNS)}
+    change = S[:, bank["fan"].columns] @ np.array([-0.02, -0.01])
+    D = rng.normal(0, sd, (n, 6))
+    D[7:] += change
+    D[6, 3:] += 0.5 * change[3:]                        # flight 6: cruise half-way, idle before it
+    es = series(D, S)
+    es.channels = [f"c{j}@{r}" for r in range(2) for j in range(3)]
+    Sigma = np.eye(6) * sd ** 2
+    rows = diagnose_engine(es, Sigma, DiagnosisConfig(eps=0.0))
+    for r in rows[7:]:
+        assert (r.detected, r.cls, r.kind, r.onset) == (1, "fan", "step", 6), (r.flight, r.cls, r.kind, r.onset)
+    keep = np.r_[0:6, 7:n]
+    ref = series(D[keep], S)
+    ref.channels = es.channels
+    ref.flights = [es.flights[i] for i in keep]
+    ref_last = diagnose_engine(ref, Sigma, DiagnosisConfig(eps=0.0))[-1]
+    assert rows[-1].magnitude == pytest.approx(ref_last.magnitude, rel=1e-9)
+    drift = rng.normal(0, sd, (n, 6)) + np.outer(np.clip(np.arange(n) - 5, 0, None), change / 4)
+    assert not any(dg._transition(drift[: k + 1], np.eye(6) / sd, np.array(["0"] * 3 + ["1"] * 3))
+                   for k in range(4, n))
+    monkeypatch.setattr(dg, "_transition", lambda *a: False)     # the old diagnosis
+    old = diagnose_engine(es, Sigma, DiagnosisConfig(eps=0.0))
+    assert any((r.cls, r.kind, r.onset) != ("fan", "step", 6) for r in old[7:])
+
+
 def test_a_second_fault_after_a_first_is_found_and_named_with_it():
     """A fan step at flight 5, then a sensor B bias at flight 10: the second fault is isolated
     and sized from the first (before, the first's step pulled the one-change fit and the bias

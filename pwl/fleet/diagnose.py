@@ -1169,6 +1169,43 @@ def _component_wear(fit, bank, taus, shape) -> list:
             stats.chi2.ppf(1 - SENSOR_TREND_LEVEL, max(1, len(comps) - len(bank[f[1]].columns)))]
 
 
+#: a flight is a transition (:func:`_transition`) when its regimes differ in how far they have
+#: moved from the flights before to the flight after with this significance (chi-square, as many
+#: degrees of freedom as regimes less one), and their shares by at least TRANSITION_SPREAD
+TRANSITION_ALPHA = 1e-6
+TRANSITION_SPREAD = 0.3
+
+
+def _transition(D: np.ndarray, Wt: np.ndarray, regime: np.ndarray) -> bool:
+    """Whether the flight before the latest (row -2 of deviations D (n, m), whitening Wt (m, m),
+    ``regime`` (m,) each channel's regime) changed during the flight: a fault that began in
+    flight (a bird strike at climb, a loss at cruise). Its windows straddle the change: the
+    ground-idle one before take-off as the flights before, the cruise one part way or as the
+    flight after. From the mean of up to three flights before (b) to the latest (a), the flight's
+    deviation d is fitted as b + alpha (a - b) with one share alpha, and with one share per regime:
+    a transition when the flights before are one state, the change a - b is significant, the
+    per-regime shares fit significantly better (:data:`TRANSITION_ALPHA`), differ by
+    :data:`TRANSITION_SPREAD` or more and each lies within the way (-0.25..1.25). A step between
+    flights has every share near 1 (or 0), a drift every share near a half."""
+    regimes = np.unique(regime)
+    if D.shape[0] < 4 or regimes.size < 2:
+        return False
+    before = D[max(0, D.shape[0] - 5): -2]
+    nb = before.shape[0]
+    b = before.mean(axis=0)
+    x, y = Wt @ (D[-2] - b), Wt @ (D[-1] - b)
+    scale = 1.0 + 1.0 / nb
+    cut = stats.chi2.ppf(1.0 - TRANSITION_ALPHA, y.size)
+    if y @ y < cut * scale or np.max(np.sum(((before - b) @ Wt.T) ** 2, axis=1)) > cut:
+        return False                              # no change to share out, or no one state before it
+    Y = np.column_stack([Wt @ np.where(regime == r, D[-1] - b, 0.0) for r in regimes])
+    shares = np.linalg.lstsq(Y, x, rcond=None)[0]
+    one = (x @ y) / (y @ y)
+    gain = (np.sum((x - one * y) ** 2) - np.sum((x - Y @ shares) ** 2)) / (scale * (1.0 + one ** 2))
+    return bool(stats.chi2.sf(gain, regimes.size - 1) < TRANSITION_ALPHA and np.ptp(shares) >= TRANSITION_SPREAD
+                and -0.25 <= shares.min() and shares.max() <= 1.25)    # each regime part of the way
+
+
 def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = DiagnosisConfig(),
                     wear: FleetNorm | None = None, level: FleetNorm | None = None) -> list[Decision]:
     """Causal diagnosis of one engine: one :class:`Decision` per flight, using flights 0..k.
@@ -1197,6 +1234,8 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
     offsets = None                          # raw-unit sensor offsets of its baseline (:func:`_calibration`)
     rolled = [Known(c.onsets[es.engine], "fleet", c.cls) for c in (wear.common if wear else [])
               if es.engine in c.onsets]          # its steps of fleet-wide changes
+    changed_in_flight: list[int] = []       # transition flights (:func:`_transition`), left out
+    regime = np.array([c.split("@")[-1] for c in es.channels])
     for k in range(n):
         r = es.flights[k]
         dec = Decision(es.engine, int(number[k]), r.label, r.source, "ok")
@@ -1209,26 +1248,31 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
         keep = present[k] & (upto.mean(axis=0) >= 0.5)
         dec.missing = _missing(es.channels, present[k])
         rowsok = np.flatnonzero(np.all(upto[:, keep], axis=1))
-        rowsok = rowsok[rowsok >= first]
+        rowsok = rowsok[(rowsok >= first) & ~np.isin(rowsok, changed_in_flight)]
         if rowsok.size < cfg.n_base + 1:
             dec.status = "baseline"
             rows.append(dec)
             continue
         idx = np.flatnonzero(keep)
-        D = es.D[rowsok][:, idx]
-        Sk = es.S[rowsok][:, idx]                 # each flight's signatures
-        Sbar_all = np.nanmean(Sk, axis=0)
-        Wt = np.linalg.inv(np.linalg.cholesky(Sigma[np.ix_(idx, idx)]))
-        # hypotheses testable with these channels (a bias of a channel without data is not)
-        bank = [h for h in bank_all if np.linalg.norm(Sbar_all[:, h.columns], axis=0).min() > 1e-9]
-        t = number[rowsok]
-        if offsets is None and level is not None and first == 0:
-            offsets = _calibration(D, Wt, Sbar_all, t, bank, cfg, level.at(Sbar_all, idx), len(bank), es.columns)
-        if offsets:
-            D = _calibrated(D, Sk, offsets, cfg.n_base + 1)
-        toggled = sorted({es.columns.index(c) for o, c in seen if o >= number[first]})
-        ratio = own_scatter(D, Wt, Sbar_all[:, toggled])
-        Wt /= np.sqrt(ratio)
+        while True:
+            D = es.D[rowsok][:, idx]
+            Sk = es.S[rowsok][:, idx]                 # each flight's signatures
+            Sbar_all = np.nanmean(Sk, axis=0)
+            # hypotheses testable with these channels (a bias of a channel without data is not)
+            bank = [h for h in bank_all if np.linalg.norm(Sbar_all[:, h.columns], axis=0).min() > 1e-9]
+            t = number[rowsok]
+            Wt = np.linalg.inv(np.linalg.cholesky(Sigma[np.ix_(idx, idx)]))
+            if offsets is None and level is not None and first == 0:
+                offsets = _calibration(D, Wt, Sbar_all, t, bank, cfg, level.at(Sbar_all, idx), len(bank), es.columns)
+            if offsets:
+                D = _calibrated(D, Sk, offsets, cfg.n_base + 1)
+            toggled = sorted({es.columns.index(c) for o, c in seen if o >= number[first]})
+            ratio = own_scatter(D, Wt, Sbar_all[:, toggled])
+            Wt /= np.sqrt(ratio)
+            if not (rowsok.size > cfg.n_base + 2 and rowsok[-2] == k - 1 and _transition(D, Wt, regime[idx])):
+                break
+            changed_in_flight.append(k - 1)       # its windows straddle a change: not a state of the engine
+            rowsok = np.delete(rowsok, -2)
         own = max(own, (ratio, int(number[k])), key=lambda x: x[0])
         mine = [f for f in found if f.onset >= number[first]]
         known = _known(mine, t[0], Sbar_all, es.columns) + [c for c in rolled if t[0] < c.onset <= t[-1]]
@@ -1259,6 +1303,10 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
                 found.append(copy(dec))          # later flights measure a new change from it
         if dec.detected and dec.cls.startswith("sensor:") and _frozen(es, k, rowsok[0], dec.cls[7:]):
             dec.kind = "stuck"
+        if dec.detected and any(number[j] < dec.onset and not np.any((number[rowsok] > number[j])
+                                                                      & (number[rowsok] < dec.onset))
+                                for j in changed_in_flight):
+            dec.onset = int(max(number[j] for j in changed_in_flight if number[j] < dec.onset))   # began in it
         # a finding on two flights in a row is confirmed: later flights look for a new change
         # after it (a second fault, a repair) measured from it, and name it in ``earlier``
         finding[len(rows)] = _finding(dec)
