@@ -11,9 +11,12 @@ runtime kernel itself, fed with what a log of the nonlinear plant would hold:
   offset (the turbofan's [alt, Mach, dTamb]), on hot and cold days (``dT`` K): the runtime
   schedules on corrected speed and corrects with theta/delta, so these test the correction;
 - transient: from a trim the fuel (every input) steps by ``step`` (5 %); the plant is integrated
-  with its own unbalanced solve (RK4 at the database's dt) and the model follows open loop on
-  the same inputs and scheduling channels; at the middle of the envelope and at several values
-  of one scheduling variable (altitudes).
+  with its own unbalanced solve (RK4 at the database's dt, in as many substeps as the fastest
+  eigenvalue of the plant's Jacobian at the trim needs: :func:`substeps`) and the model follows
+  open loop on the same inputs and scheduling channels; at the middle of the envelope and at
+  several values of one scheduling variable (altitudes). A plant whose own response stops being
+  finite (an open-loop-unstable point) gives no comparison but a message naming the point and
+  the unstable eigenvalue (:func:`divergence`).
 
 Errors are in % of the plant's value, except stall margins (channels named ``Sm...``, themselves
 in %): their errors are absolute, in percentage points (:func:`output_errors`).
@@ -21,6 +24,7 @@ in %): their errors are absolute, in percentage points (:func:`output_errors`).
 from __future__ import annotations
 
 import copy
+import warnings
 
 import numpy as np
 
@@ -37,6 +41,11 @@ MARGIN_PREFIX = "Sm"
 POINTS_PER_UNIT = {"%": 1.0, "-": 100.0}
 #: the days of ``pwl validate --days``: sign of the ambient temperature offset dT
 DAYS = {"std": 0.0, "hot": 1.0, "cold": -1.0}
+#: largest |eigenvalue| x RK4 step of the plant-side integration (:func:`substeps`): RK4 is stable
+#: up to 2.79 on the negative real axis and 2.83 on the imaginary one, a margin of 2.8 for the
+#: Jacobian of a nonlinear plant moving during the step; the demo turbofan (0.05 at dt 15 ms) and
+#: the linear example (0.11 at 50 ms) keep one step per sample
+RK4_REACH = 1.0
 
 
 class ValidateError(PwlError, ValueError):
@@ -225,26 +234,81 @@ def scheduled_trims(db: GainDatabase, plant=None, n: int = 200, seed: int = 1, d
     return np.array(errs).reshape(-1, len(names)), np.array(pts), failed
 
 
-def simulate(plant, x0, U, h, env, dt: float):
-    """Integrate the plant over inputs U (n, nu) held per step (RK4 on the unbalanced solve);
-    returns x, y, z at every sample (n, .)."""
+def plant_eigenvalues(plant, trim: dict, h, env) -> np.ndarray:
+    """Eigenvalues (nx,) of the plant's Jacobian df/dx at a trim (``trim`` from ``plant.trim``, h
+    (nh,) health, env its environment), by the builder's perturbations (:mod:`linearize.jacobian`):
+    complex, 1/s for a continuous plant; for a discrete plant the multipliers of one step."""
+    from .jacobian import jacobians
+
+    return np.linalg.eigvals(jacobians(plant, trim, h, env)[0]["A"])
+
+
+def substeps(eig, dt: float) -> int:
+    """RK4 steps per sample of ``dt`` s for a continuous plant whose Jacobian has the eigenvalues
+    ``eig`` (1/s): ceil(max |eig| dt / :data:`RK4_REACH`), at least 1 (a 1 ms pole at dt 50 ms: 50)."""
+    return max(1, int(np.ceil(np.abs(eig).max() * dt / RK4_REACH)))
+
+
+def simulate(plant, x0, U, h, env, dt: float, steps: int = 1):
+    """Integrate the plant over inputs U (n, nu), each held for one sample of ``dt`` s: RK4 on its
+    unbalanced solve in ``steps`` steps of dt / steps per sample (a discrete plant: its own step);
+    returns x, y, z at every sample (n, .). Where the state stops being finite (or the plant
+    raises OverflowError or FloatingPointError) the integration stops, every row from that sample
+    on is NaN and the warnings raised on the way there (overflow) are dropped: the divergence is
+    reported instead (:func:`divergence`); otherwise the plant's warnings are passed on."""
     n = U.shape[0]
     x = np.asarray(x0, dtype=np.float64).copy()
-    X = np.empty((n, x.size))
-    Y = np.empty((n, len(plant.y_names)))
-    Z = np.empty((n, len(plant.z_names)))
-    for k in range(n):
-        u = U[k]
-        f1, y, z = plant.evaluate(x, u, h, env)
-        X[k], Y[k], Z[k] = x, y, z
-        if getattr(plant, "time", "continuous") == "discrete":
-            x = np.asarray(f1, dtype=np.float64)
-            continue
-        f2 = plant.evaluate(x + 0.5 * dt * f1, u, h, env)[0]
-        f3 = plant.evaluate(x + 0.5 * dt * f2, u, h, env)[0]
-        f4 = plant.evaluate(x + dt * f3, u, h, env)[0]
-        x = x + dt / 6.0 * (f1 + 2 * f2 + 2 * f3 + f4)
+    X = np.full((n, x.size), np.nan)
+    Y = np.full((n, len(plant.y_names)), np.nan)
+    Z = np.full((n, len(plant.z_names)), np.nan)
+    hs = dt / steps
+    discrete = getattr(plant, "time", "continuous") == "discrete"
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            for k in range(n):
+                if not np.all(np.isfinite(x)):
+                    break
+                u = U[k]
+                f1, y, z = plant.evaluate(x, u, h, env)
+                X[k], Y[k], Z[k] = x, y, z
+                if discrete:
+                    x = np.asarray(f1, dtype=np.float64)
+                    continue
+                for i in range(steps):
+                    if i:
+                        f1 = plant.evaluate(x, u, h, env)[0]
+                    f2 = plant.evaluate(x + 0.5 * hs * f1, u, h, env)[0]
+                    f3 = plant.evaluate(x + 0.5 * hs * f2, u, h, env)[0]
+                    f4 = plant.evaluate(x + hs * f3, u, h, env)[0]
+                    x = x + hs / 6.0 * (f1 + 2 * f2 + 2 * f3 + f4)
+        except (OverflowError, FloatingPointError):
+            pass                            # the rows not reached stay NaN
+    if np.all(np.isfinite(X)):
+        seen = {}
+        for w in caught:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno, registry=seen)
     return X, Y, Z
+
+
+def divergence(point: str, eig, discrete: bool, t_bad: float, steps: int, dt: float) -> str:
+    """Why the plant's own response stopped being finite at ``t_bad`` s in a transient from a trim
+    at ``point`` ("alt=0, NR=85"): its unstable eigenvalue there (``eig`` (nx,) of its Jacobian:
+    1/s; for a ``discrete`` plant multipliers per step), else that it grew without bound from a
+    stable trim (the step took it elsewhere, or ``steps`` RK4 steps per ``dt`` s were too few)."""
+    grew = f"the plant's own response grew without bound (not finite from t = {t_bad:.3g} s)"
+    fmt = lambda e: f"{e.real:+.4g}" if e.imag == 0 else f"{e.real:+.4g}{e.imag:+.4g}j"  # noqa: E731
+    worst = eig[np.argmax(np.abs(eig) if discrete else eig.real)]
+    if discrete and abs(worst) > 1.0:
+        return (f"{grew}: the plant is open-loop unstable at {point} (its Jacobian there has the "
+                f"multiplier {fmt(worst)} per step, magnitude {abs(worst):.4g} > 1): no transient to compare")
+    if not discrete and worst.real > 0.0:
+        return (f"{grew}: the plant is open-loop unstable at {point} (its Jacobian there has the "
+                f"eigenvalue {fmt(worst)} 1/s, growing e-fold every {1.0 / worst.real:.3g} s): no "
+                "transient to compare")
+    return (f"{grew} from a stable trim at {point} (eigenvalues {', '.join(fmt(e) for e in eig)}"
+            f"{'' if discrete else ' 1/s'}): the step took it somewhere unstable, or {steps} RK4 "
+            f"step(s) per {dt:g} s sample were too few")
 
 
 def step_point(db: GainDatabase, axis: str | None = None, value: float | None = None) -> np.ndarray:
@@ -269,24 +333,39 @@ def fuel_step(db: GainDatabase, plant=None, p=None, step: float = 0.05, seconds:
     """Open-loop model vs plant after an input step of ``step`` (fraction) at ``t_step`` s from a
     trim at ``p`` (default: :func:`step_point`). Returns a dict with time (n,) s, the plant's
     ("truth") and the model's y and z (n, ny + nz), their names and units, ``p``, and the errors
-    (n, ny + nz; % of value, stall margins in points: :func:`output_errors`)."""
+    (n, ny + nz; % of value, stall margins in points: :func:`output_errors`), ``t_step``; ``eigenvalues``
+    (nx,) of the plant's Jacobian at the trim (1/s), the RK4 ``steps`` per sample
+    (:func:`substeps`) and ``diverged``: None, or when the plant's own response stopped being
+    finite the reason (:func:`divergence`), the truth NaN from there on and the model and the
+    errors NaN throughout (not run: there is nothing to compare)."""
     plant = plant or plant_of(db)
     if p is None:
         p = step_point(db)
     env = plant.environment(p)
     h = db.tuner["h_ref"]
     t = plant.trim(p, h, env)
+    eig = plant_eigenvalues(plant, t, h, env)
+    discrete = getattr(plant, "time", "continuous") == "discrete"
+    steps = 1 if discrete else substeps(eig, db.dt)
     n = int(round(seconds / db.dt))
     time = np.arange(n) * db.dt
     U = np.repeat(np.asarray(t["u"], dtype=np.float64)[None, :], n, axis=0)
     U[time >= t_step] *= 1.0 + step
-    X, Y, Z = simulate(plant, t["x"], U, h, env, db.dt)
-    res = open_loop(db).run(log_of(plant, db, p, env, X, U, Y, Z))
+    X, Y, Z = simulate(plant, t["x"], U, h, env, db.dt, steps)
     truth = np.hstack([Y, Z])
-    model = np.hstack([res.y_hat, res.z_hat])
     names, units = outputs(plant)
+    bad = ~np.all(np.isfinite(X), axis=1)
+    diverged = None
+    if bad.any():
+        point = ", ".join(f"{a.name}={v:.4g}" for a, v in zip(db.trim_grid.axes, p))
+        diverged = divergence(point, eig, discrete, float(time[np.argmax(bad)]), steps, db.dt)
+        model = np.full_like(truth, np.nan)
+    else:
+        res = open_loop(db).run(log_of(plant, db, p, env, X, U, Y, Z))
+        model = np.hstack([res.y_hat, res.z_hat])
     return {"time": time, "truth": truth, "model": model, "p": p, "names": names, "units": units,
-            "error": output_errors(names, units, model, truth)}
+            "error": output_errors(names, units, model, truth), "t_step": t_step, "eigenvalues": eig,
+            "steps": steps, "diverged": diverged}
 
 
 def transients(db: GainDatabase, plant=None, axis: str = "alt", values=(0.0, 6000.0, 12000.0),

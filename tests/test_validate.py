@@ -9,11 +9,15 @@ and tuner selection through an executor (linearize/tuners.py) against the serial
 - Hot and cold days on the shipped turbofan database: the runtime's scheduling variables from a
   hot-day log equal the plant's corrected point, and the trim tables hold their stated error.
 - Stall margins are checked in percentage points.
+- A stiff linear plant (a 1 ms pole at dt 50 ms): the plant side in RK4 substeps equals the
+  closed form (RK4 at dt overflowed); an unstable one is named with its eigenvalue, where the
+  closed form says its response leaves the floats, without overflow warnings.
 - Tuner selection through a process pool gives bit-for-bit the serial tuners, which equal the
   former scipy-internal finite-difference path.
 """
 import copy
 import os
+import warnings
 
 import numpy as np
 import pytest
@@ -56,11 +60,11 @@ def test_linear_plant_steady_state_and_trim_tables_are_exact(linear_db):
     assert not failed and errs.shape == (6, 5) and np.abs(errs).max() < 1e-9
 
 
-def closed_form(p, step, time, dt, t_step=1.0):
-    """The linear plant's exact response (continuous, ZOH-held input) and the runtime's model
-    (input of sample k drives the state into sample k: x_k = Ad x_(k-1) + Bd du_k), both
-    (n, ny + nz), from the plant's own matrices and scipy's expm."""
-    pl = LinearPlant()
+def closed_form(p, step, time, dt, t_step=1.0, pl=None):
+    """The linear plant's (``pl``, default ``LinearPlant()``) exact response (continuous,
+    ZOH-held input) and the runtime's model (input of sample k drives the state into sample k:
+    x_k = Ad x_(k-1) + Bd du_k), both (n, ny + nz), from the plant's own matrices and scipy's expm."""
+    pl = pl or LinearPlant()
     t = pl.trim(p, np.zeros(3), pl.environment(p))
     Ad = expm(pl.A * dt)
     Bd = np.linalg.solve(pl.A, (Ad - np.eye(2)) @ pl.B)
@@ -397,3 +401,141 @@ def test_the_plant_is_made_again_from_the_specs_parameters_not_its_own(tmp_path)
     bare.attrs = dict(db.attrs, spec="", model_parameters={"no_such_argument": 1})
     with pytest.raises(PlantProtocolError, match="cannot make the plant models.turbofan:Turbofan again"):
         plant_of(bare)
+
+
+# ---- 6. stiff and unstable plants: the plant side of the transients -----------------------------
+#: a 1 ms pole at the linear example's dt of 50 ms (B scaled so the fast state moves by as much as
+#: the default's): RK4 at dt alone has the growth factor 2.4e5 per step there and overflows
+STIFF = {"A": [[-1000.0, 0.5], [0.3, -1.0]], "B": [[1000.0], [0.2]]}
+#: an unstable pole, +150 1/s: the plant's own response leaves the floats ~4.7 s after the step
+UNSTABLE = {"A": [[150.0, 0.5], [0.3, -1.0]]}
+
+
+def linear_build(tmp_path_factory, name, matrices):
+    out = tmp_path_factory.mktemp(name) / f"{name}.h5"
+    build(BuildSpec.load(LINEAR_SPEC), out, plant=LinearPlant(**matrices), executor=SerialExecutor(),
+          progress=False, log=lambda *a: None)
+    return GainDatabase.open(out)
+
+
+@pytest.fixture(scope="module")
+def stiff_db(tmp_path_factory):
+    return linear_build(tmp_path_factory, "stiff", STIFF)
+
+
+@pytest.fixture(scope="module")
+def unstable_db(tmp_path_factory):
+    return linear_build(tmp_path_factory, "unstable", UNSTABLE)
+
+
+def test_a_stiff_plant_transient_equals_the_closed_form(stiff_db):
+    """The plant side takes ceil(max |eig A| dt) RK4 steps per sample (51 here) and equals the
+    exact continuous response (expm) to 1e-9 relative (2.3e-15 measured; RK4 at dt alone gave
+    inf/NaN); the model is the exact ZOH recursion to 1e-12, so the reported error is the sample
+    convention's alone: 0.81 % (y1) at the step, where the fast state settles within the sample."""
+    pl = LinearPlant(**STIFF)
+    tr = V.fuel_step(stiff_db, step=0.05, seconds=4.0)
+    plant, model = closed_form(tr["p"], 0.05, tr["time"], stiff_db.dt, pl=pl)
+    assert np.abs(model - plant).max() > 0.05                   # the step moved the outputs
+    np.testing.assert_allclose(tr["truth"], plant, rtol=1e-9)
+    assert tr["steps"] == int(np.ceil(np.abs(np.linalg.eigvals(pl.A)).max() * stiff_db.dt)) == 51
+    assert tr["diverged"] is None
+    np.testing.assert_allclose(tr["model"], model, rtol=1e-12, atol=1e-12)
+    expect = V.output_errors(tr["names"], tr["units"], model, plant)
+    np.testing.assert_allclose(tr["error"], expect, atol=1e-9)
+    k = np.argmax(tr["time"] >= 1.0)
+    assert np.argmax(np.abs(tr["error"][:, 0])) == k and 0.7 < abs(tr["error"][k, 0]) < 0.9
+
+
+def test_validate_passes_a_stiff_plant_and_names_the_one_sample_lead(stiff_db, capsys):
+    """The command passes the stiff plant at the default limit (it printed 5 "error is NaN"
+    failures); with --max-error 0.5 y1 fails at the step's sample only, and a note says so with
+    y1's largest error elsewhere, from the closed form."""
+    args = ["validate", stiff_db.path, "-n", "2", "--trim-points", "5"]
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert "passed" in out and "NaN" not in out and "above the limit only" not in out
+    assert main([*args, "--max-error", "0.5"]) == 1
+    out = capsys.readouterr().out
+    failed = [ln for ln in out.splitlines() if ln.startswith("FAILED")]
+    assert len(failed) == 1 and failed[0].startswith("FAILED transient: y1 max |error| 0.81"), failed
+    tr = V.fuel_step(stiff_db)
+    plant, model = closed_form(tr["p"], 0.05, tr["time"], stiff_db.dt, pl=LinearPlant(**STIFF))
+    err = np.abs(V.output_errors(tr["names"], tr["units"], model, plant)[:, 0])
+    elsewhere = np.delete(err, np.argmax(tr["time"] >= 1.0)).max()
+    assert (f"(y1 above the limit only at the step's sample, t = 1 s: the model leads the plant by one "
+            f"sample, the whole step for a plant faster than dt (docs/building.md, Validation); elsewhere "
+            f"at most {elsewhere:.3f} %)") in out
+
+
+def test_an_unstable_plant_names_the_point_and_its_eigenvalue(unstable_db, capsys):
+    """The plant's own response leaves the floats when the closed form says (its unstable mode,
+    +150 1/s, from the step's exact modal amplitude: |A dx| reaches the largest float at 5.748 s;
+    the first non-finite sample within two samples after), without a RuntimeWarning; the
+    transient names the point and the eigenvalue instead of five "error is NaN" lines, and the
+    model is not run on it."""
+    pl = LinearPlant(**UNSTABLE)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        tr = V.fuel_step(unstable_db)
+    assert [w for w in caught if issubclass(w.category, RuntimeWarning)] == []
+    lam, vec = np.linalg.eig(pl.A)
+    i = int(np.argmax(lam.real))
+    t = pl.trim(tr["p"], np.zeros(3), pl.environment(tr["p"]))
+    mode = np.linalg.solve(vec, np.linalg.solve(pl.A, pl.B[:, 0] * 0.05 * t["u"][0]))[i]
+    t_over = 1.0 + (np.log(np.finfo(float).max) - np.log(np.abs(pl.A @ vec[:, i] * mode).max())) / lam[i]
+    bad = ~np.all(np.isfinite(tr["truth"]), axis=1)
+    t_bad = tr["time"][np.argmax(bad)]
+    # the state turns inf in the RK4 step whose stages pass the largest float, seen at the next sample
+    assert bad[np.argmax(bad):].all() and -unstable_db.dt < t_bad - t_over <= 2 * unstable_db.dt
+    assert np.isnan(tr["model"]).all() and np.isnan(tr["error"]).all()
+    assert tr["diverged"] == (
+        f"the plant's own response grew without bound (not finite from t = {t_bad:.3g} s): the plant is "
+        f"open-loop unstable at level=1.001, power=0.751 (its Jacobian there has the eigenvalue "
+        f"{lam[i]:+.4g} 1/s, growing e-fold every {1 / lam[i]:.3g} s): no transient to compare")
+    assert main(["validate", unstable_db.path, "-n", "1", "--trim-points", "2"]) == 1
+    out = capsys.readouterr().out
+    failed = [ln for ln in out.splitlines() if ln.startswith("FAILED transient")]
+    assert failed == [f"FAILED transient: {tr['diverged']}"]
+    assert "worst transient error none" in out
+
+
+def test_simulate_stops_where_the_response_leaves_the_floats():
+    """dx/dt = x^2 from x = 1: x = 1 / (1 - t), infinite at t = 1 s. RK4 (4 steps per 10 ms)
+    follows it to 1e-7 relative up to 0.9 s; the rows from the first non-finite state on are NaN
+    (within 50 ms after 1 s) and the overflow warnings are not passed on, while a plant's own
+    warnings on a finite run are."""
+    class Blowup:
+        y_names, z_names = ("y",), ("z",)
+
+        def evaluate(self, x, u, h, env):
+            x = np.asarray(x, dtype=np.float64)
+            if u[0] == 0.0:
+                warnings.warn("the plant's own note", UserWarning)
+            return x ** 2 * u[0], x ** 3, x ** 4
+
+    U = np.ones((200, 1))
+    time = np.arange(200) * 0.01
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        X, Y, Z = V.simulate(Blowup(), [1.0], U, None, None, 0.01, 4)
+    assert caught == []
+    ok = time < 0.9
+    np.testing.assert_allclose(X[ok, 0], 1.0 / (1.0 - time[ok]), rtol=1e-7)
+    first = np.argmax(~np.isfinite(X[:, 0]))
+    assert 1.0 < time[first] <= 1.05 and np.isnan(np.hstack([X, Y, Z])[first:]).all()
+    with pytest.warns(UserWarning, match="the plant's own note"):
+        X, _, _ = V.simulate(Blowup(), [1.0], np.zeros((3, 1)), None, None, 0.01)
+    np.testing.assert_array_equal(X, np.ones((3, 1)))
+
+
+def test_divergence_from_a_stable_trim_and_of_a_discrete_plant():
+    """The other causes: a response that blew up from a stable trim says so with its eigenvalues
+    and the RK4 steps; a discrete plant's unstable multiplier is named as such."""
+    msg = V.divergence("a=1", np.array([-2.0, -0.5 + 3.0j]), False, 2.5, 4, 0.05)
+    assert msg == ("the plant's own response grew without bound (not finite from t = 2.5 s) from a stable "
+                   "trim at a=1 (eigenvalues -2, -0.5+3j 1/s): the step took it somewhere unstable, or 4 "
+                   "RK4 step(s) per 0.05 s sample were too few")
+    msg = V.divergence("a=1", np.array([0.5, -1.25]), True, 3.0, 1, 0.05)
+    assert msg.endswith("the plant is open-loop unstable at a=1 (its Jacobian there has the multiplier "
+                        "-1.25 per step, magnitude 1.25 > 1): no transient to compare")

@@ -19,7 +19,8 @@ TRANSIENT_ALTS = "grid"
 HELP = ("compare the piecewise-linear model (open loop) with the nonlinear plant: steady state and "
         "trim tables on standard, hot and cold days, input steps at several altitudes; exit status "
         f"1 when any error is NaN or above --max-error (default {MAX_ERROR:g} percent of the plant's "
-        f"value) or, for a stall margin, above --max-sm-error (default {MAX_SM_ERROR:g} points)")
+        f"value) or, for a stall margin, above --max-sm-error (default {MAX_SM_ERROR:g} points), or when "
+        "the plant's own response to a step grows without bound (named with its unstable eigenvalue)")
 # (no '%' in HELP: argparse formats the command list with it)
 
 
@@ -91,7 +92,7 @@ def worst(names, errs) -> str:
     from linearize.validate import is_margin
 
     if errs.size == 0:
-        return "nan %"
+        return "none"
     m = np.abs(errs).max(axis=0)
     parts = []
     for margin, unit in ((False, "%"), (True, "points")):
@@ -164,27 +165,66 @@ def point_checks(args, db, plant, names, days):
 
 
 def altitude_table(trs, names, alts):
-    """RMS and largest |error| of every output over each altitude's transient (columns)."""
+    """RMS and largest |error| of every output over each altitude's transient (columns; "diverged"
+    where the plant's own response did: the FAILED line says why)."""
     from linearize.validate import error_unit
 
     head = "".join(f" {f'{a:g} m RMS':>12} {'max':>7}" for a in alts)
     print(f"  {'channel':<8}{head}  unit")
     for j, n in enumerate(names):
-        cells = "".join(f" {tr['rms'][j]:>12.3f} {tr['max'][j]:>7.3f}" for tr in trs)
+        cells = "".join(f" {'diverged':>12} {'-':>7}" if tr["diverged"] else
+                        f" {tr['rms'][j]:>12.3f} {tr['max'][j]:>7.3f}" for tr in trs)
         print(f"  {n:<8}{cells}  {error_unit(n)}")
+
+
+def lead_note(names, tr, args, where="") -> str:
+    """A note naming the outputs of transient ``tr`` that exceed their limit only at the step's
+    sample (within it at every other one), ``where`` ("at 0 m, ") first: the runtime's one-sample
+    lead (docs/building.md, "Validation"), the whole step for a plant faster than dt; with their
+    largest |error| elsewhere (% or points). '' when there are none."""
+    from linearize.validate import error_unit, is_margin
+
+    if tr["diverged"]:
+        return ""
+    k = int(np.argmax(tr["time"] >= tr["t_step"]))
+    err = np.abs(tr["error"])
+    rest = np.delete(err, k, axis=0).max(axis=0)
+    lim = [args.max_sm_error if is_margin(n) else args.max_error for n in names]
+    only = [j for j in range(len(names)) if err[k, j] > lim[j] >= rest[j]]
+    if not only:
+        return ""
+    return (f"  ({where}{', '.join(names[j] for j in only)} above the limit only at the step's sample, "
+            f"t = {tr['time'][k]:g} s: the model leads the plant by one sample, the whole step for a plant "
+            "faster than dt (docs/building.md, Validation); elsewhere at most "
+            + ", ".join(f"{rest[j]:.3f} {error_unit(names[j])}" for j in only) + ")")
+
+
+def transient_failures(check, names, tr, args):
+    """Failure lines of one transient: one naming the cause when the plant's own response
+    diverged (no comparison), else :func:`failures` of its errors."""
+    if tr["diverged"]:
+        return [f"{check}: {tr['diverged']}"]
+    return failures(check, names, tr["error"], args.max_error, args.max_sm_error)
 
 
 def transient_checks(args, db, plant, names, alts):
     """The input step at the middle of the envelope (one table, as before) and at each of
-    ``alts`` altitudes (one table of RMS and max per altitude); returns (failure lines, [errs],
-    the middle step's result for --plot)."""
+    ``alts`` altitudes (one table of RMS and max per altitude); returns (failure lines, [errs] of
+    the transients compared (not those whose plant diverged), the middle step's result for
+    --plot)."""
     from linearize.validate import fuel_step, step_point, transients
 
     tr = fuel_step(db, plant, step_point(db), step=args.step)
     p = ", ".join(f"{a.name}={v:.4g}" for a, v in zip(db.trim_grid.axes, tr["p"]))
-    table(f"\ntransient: {100 * args.step:g} % input step at {p}, model vs plant:", names, tr["error"])
-    bad = failures("transient", names, tr["error"], args.max_error, args.max_sm_error)
-    errs = [tr["error"]]
+    title = f"\ntransient: {100 * args.step:g} % input step at {p}, model vs plant:"
+    if tr["diverged"]:
+        print(f"{title}\n  {tr['diverged']}")
+    else:
+        table(title, names, tr["error"])
+    if note := lead_note(names, tr, args):
+        print(note)
+    bad = transient_failures("transient", names, tr, args)
+    errs = [] if tr["diverged"] else [tr["error"]]
     asked = alts or args.transient_alts.strip().lower() == "grid"
     if asked and "alt" not in [a.name for a in db.trim_grid.axes]:
         print(f"\n(no transients at altitudes: the trim grid has no alt axis; axes {db.names['p']})")
@@ -195,8 +235,10 @@ def transient_checks(args, db, plant, names, alts):
               f"{', '.join(f'{a:g}' for a in alts)} m, model vs plant (over {tr['time'][-1] + db.dt:g} s):")
         altitude_table(trs, names, alts)
         for a, t in zip(alts, trs):
-            bad += failures(f"transient at alt={a:g} m", names, t["error"], args.max_error, args.max_sm_error)
-            errs.append(t["error"])
+            if note := lead_note(names, t, args, f"at {a:g} m, "):
+                print(note)
+            bad += transient_failures(f"transient at alt={a:g} m", names, t, args)
+            errs += [] if t["diverged"] else [t["error"]]
     return bad, errs, tr
 
 
