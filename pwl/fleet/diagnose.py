@@ -232,8 +232,8 @@ def in_flight_order(flights: list[FlightRecord]) -> tuple[list[FlightRecord], st
     if indexed:
         return sorted(flights, key=lambda r: (r.index, nat(r))), (
             f"{why}: ordered by flight_index" if len(timeless) < len(flights) else "")
-    return sorted(flights, key=nat), f"{why} and no distinct flight_index: ordered by file name" if (
-        len(timeless) < len(flights) or min(idx, default=-1) >= 0) else ""
+    some = len(timeless) < len(flights) or min(idx, default=-1) >= 0     # a time or an index to go by
+    return sorted(flights, key=nat), (f"{why} and no distinct flight_index: ordered by file name" if some else "")
 
 
 def order_notes(records: list[FlightRecord]) -> list[str]:
