@@ -1150,6 +1150,13 @@ class Estimator:
             outs[o] = np.where(no[:, None], np.nan, outs[o]) if no.any() else outs[o]
         acc.add(start, res.time, raw, p, outs, outside)
 
+    def __getstate__(self) -> dict:
+        """Pickling and copying leave out the stream :meth:`step` made (compiled records, not
+        picklable; a copy makes its own on its first step, from the state it copied)."""
+        state = self.__dict__.copy()
+        state.pop("_stream", None)
+        return state
+
     def step(self, sample: dict) -> dict:
         """One sample through the filter, continuing from the current state.
 

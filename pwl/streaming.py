@@ -193,6 +193,11 @@ class Stream:
         Output name -> (1, k) array (the same buffers).
     """
 
+    def __reduce__(self):
+        raise UsageError("a Stream cannot be pickled or copied (its compiled records are not): pickle or "
+                         "copy its Estimator, which holds the filter state, and make a new Stream(est, "
+                         "reset=False) from the copy")
+
     def __init__(self, est, reset: bool = True):
         self.est = est
         db, pm = est.db, est.pm

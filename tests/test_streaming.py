@@ -227,3 +227,31 @@ def test_a_new_stream_starts_a_new_flight():
     est.run(degraded)
     carried, _ = run_stream(Stream(est, reset=False), rows)
     assert not np.array_equal(carried["z_hat"], fresh.outputs["z_hat"])
+
+
+def test_an_estimator_stepped_one_sample_at_a_time_pickles_and_copies():
+    """After est.step() the estimator held its Stream (compiled records) and could be neither
+    pickled nor deep-copied (PicklingError, a numba TypingError): a user could not save the state
+    of an on-line run, nor send it to a worker. Now both copy the filter state and continue
+    exactly as the original does; a Stream itself says what to do instead."""
+    import copy
+    import pickle
+
+    from pwl.demo_data import demo_paths
+    from pwl.logs import read_log
+    db, logs = demo_paths()
+    log = read_log(logs[1])
+    est = Estimator(db)
+    rows = [{c: float(log.channels[c][i]) for c in est.input_channels} for i in range(2500)]
+    for r in rows[:2000]:
+        est.step(r)
+    copies = [pickle.loads(pickle.dumps(est)), copy.deepcopy(est)]
+    last = []
+    for e in [est] + copies:
+        for r in rows[2000:]:
+            out = e.step(r)
+        last.append(list(out["h_hat"].values()) + list(out["z_hat"].values()))
+    np.testing.assert_array_equal(last[1], last[0])
+    np.testing.assert_array_equal(last[2], last[0])
+    with pytest.raises(UsageError, match="a Stream cannot be pickled or copied.*make a new Stream"):
+        pickle.dumps(Stream(est, reset=False))
