@@ -184,6 +184,28 @@ def test_a_fault_that_began_in_flight_is_left_out_of_its_onset_flight(monkeypatc
     assert any((r.cls, r.kind, r.onset) != ("fan", "step", 6) for r in old[7:])
 
 
+def test_two_faults_on_consecutive_flights_are_both_found():
+    """A fan loss at flight 5 and an HPT loss at flight 6: the fan step, found on flight 5 only,
+    was never confirmed (a finding is confirmed on two flights in a row), flight 6 fitted both as
+    one change of neither (a pair, a drift) and later flights reported the fan's 'recoveries'.
+    Now, measured from the step found the flight before, flight 6's own change is tested: the
+    HPT loss from flight 6, sized, with the fan named in ``earlier``."""
+    rng = np.random.default_rng(21)
+    S = synthetic_signatures()
+    sd = 1e-3
+    bank = {h.name: h for h in hypotheses(COLUMNS)}
+    D = rng.normal(0, sd, (14, 6))
+    D[5:] += S[:, bank["fan"].columns] @ np.array([-0.02, -0.01])
+    D[6:] += S[:, bank["hpt"].columns] @ np.array([-0.015, 0.008])
+    rows = diagnose_engine(series(D, S), np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0))
+    assert (rows[5].cls, rows[5].onset) == ("fan", 5)
+    for r in rows[6:]:
+        assert (r.detected, r.cls, r.kind, r.onset, r.earlier) == (1, "hpt", "step", 6, "fan@5"), \
+            (r.flight, r.cls, r.kind, r.onset, r.earlier)
+    est = [float(x.split("=")[1]) for x in rows[-1].detail.split()]
+    np.testing.assert_allclose(est, [-0.015, 0.008], atol=4 * rows[-1].magnitude_std + 1e-12, rtol=0.1)
+
+
 def test_a_second_fault_after_a_first_is_found_and_named_with_it():
     """A fan step at flight 5, then a sensor B bias at flight 10: the second fault is isolated
     and sized from the first (before, the first's step pulled the one-change fit and the bias

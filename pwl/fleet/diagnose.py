@@ -1276,18 +1276,38 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
         own = max(own, (ratio, int(number[k])), key=lambda x: x[0])
         mine = [f for f in found if f.onset >= number[first]]
         known = _known(mine, t[0], Sbar_all, es.columns) + [c for c in rolled if t[0] < c.onset <= t[-1]]
-        stages = _stages(D, Wt, Sbar_all, t, bank, cfg, wear and wear.at(Sbar_all, idx), known,
-                         level.at(Sbar_all, idx) if level and first == 0 else None)
-        every = [f for stage in stages for _, fits in stage for f in fits]
-        n_tests = max(1, len(every))
-        if not every:
+
+        def decide(dec, known):
+            """dec decided on the tests measured from ``known``; the number of tests (0: none)."""
+            stages = _stages(D, Wt, Sbar_all, t, bank, cfg, wear and wear.at(Sbar_all, idx), known,
+                             level.at(Sbar_all, idx) if level and first == 0 else None)
+            every = [f for stage in stages for _, fits in stage for f in fits]
+            if every:
+                p_all = stats.chi2.sf([f[2] for f in every], [len(bank[f[1]].columns) for f in every]) * len(every)
+                dec.p_value = min(float(p_all.min()), 1.0)
+                for stage in stages:
+                    if stage and _decide(dec, stage, bank, Sbar_all, t, es, rowsok, len(every), cfg):
+                        break
+            return len(every)
+        n_tests = decide(dec, known)
+        if not n_tests:
             rows.append(dec)
             continue
-        p_all = stats.chi2.sf([f[2] for f in every], [len(bank[f[1]].columns) for f in every]) * n_tests
-        dec.p_value = min(float(p_all.min()), 1.0)
-        for stage in stages:
-            if stage and _decide(dec, stage, bank, Sbar_all, t, es, rowsok, n_tests, cfg):
-                break
+        # a step found on the flight before (not yet confirmed) and another change on this one: two
+        # faults a flight apart were one fit of neither (HPC at 5, LPT at 6: the HPC lost, its
+        # 'recoveries' reported); measured from that step, this flight's own change is tested
+        prev = finding.get(len(rows) - 1)
+        if (prev and prev[2] == "step" and prev[1] == number[rowsok[-2]] and _finding(dec) != prev
+                and prev[1] not in [f.onset for f in found]):
+            then = known + [Known(prev[1], "step", prev[0])]
+            second = Decision(es.engine, int(number[k]), r.label, r.source, "ok")
+            second.missing = dec.missing
+            tests = decide(second, then)
+            if second.detected and second.onset == number[k] and second.kind == "step" and \
+                    _finding(rows[-1]) == prev and not set(second.cls.split("+")) & set(prev[0].split("+")):
+                # (of other components or sensors: the same one again is a change still going on)
+                found.append(copy(rows[-1]))
+                dec, known, n_tests = second, then, tests
         if dec.kind == "recovery":
             _sensor_part(dec, D, Wt, Sbar_all, t, bank, cfg, known, n_tests, es, rowsok)
         if dec.kind == "recovery":
