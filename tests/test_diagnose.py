@@ -128,6 +128,37 @@ def test_one_engine_alone_keeps_its_false_alarms_when_its_channels_scatter_toget
     assert alarms["shrunk"] <= bound < alarms["diagonal"], (alarms, flights)
 
 
+def test_a_fleet_of_two_instrumentation_standards_has_its_scatter():
+    """Half the engines never had channel 0, the other half never channel 1 (two standards: no
+    P15 on the older ones, no T24 on the newer): no flight had every channel, the scatter was
+    estimated as zeros (the floor alone) and 65 of 78 healthy engine-flights of such a probe fleet
+    alarmed. Now each channel's variance and each pair's correlation come from the differences
+    that hold them: within 35 % of the covariance drawn (the pair never seen together taken as
+    uncorrelated, the whole positive definite), and the false alarms at the design rate."""
+    rng = np.random.default_rng(8)
+    S = synthetic_signatures()
+    sd = 1e-3
+    Sigma = sd ** 2 * (0.5 * np.eye(6) + 0.5 * np.ones((6, 6)))
+    L = np.linalg.cholesky(Sigma)
+    out = []
+    for e in range(12):
+        D = (L @ rng.normal(size=(6, 16))).T + rng.normal(0, 0.01, 6)
+        D[:, e % 2] = np.nan
+        out.append(series(D, S, engine=f"E{e}"))
+    est = noise_covariance(out, floor=1e-6)
+    assert np.all(np.diag(est) > 0) and abs(est[0, 1]) < 1e-9 * sd ** 2      # never seen together
+    seen = ~np.isin(np.arange(36).reshape(6, 6), [1, 6])
+    np.testing.assert_allclose(est[seen], Sigma[seen], rtol=0.35, atol=0.2 * sd ** 2)
+    np.linalg.cholesky(est)
+    cfg = DiagnosisConfig(alpha=0.02, min_step=0.0, min_rate=0.0)
+    alarms = flights = 0
+    for es in out:
+        rows = diagnose_engine(es, est, cfg)
+        alarms += sum(r.detected for r in rows)
+        flights += sum(r.status == "ok" for r in rows)
+    assert alarms <= 0.02 * flights + 3 * np.sqrt(0.02 * flights), (alarms, flights)
+
+
 @pytest.mark.parametrize("cls,theta", [("fan", [-0.02, -0.01]), ("hpt", [-0.015, 0.008]),
                                        ("sensor:B", [0.8]), ("sensor:C", [-1.5])])
 def test_a_step_is_detected_isolated_and_sized(cls, theta):

@@ -410,16 +410,20 @@ def noise_covariance(series: list[EngineSeries], floor: float) -> np.ndarray:
     correlations (:func:`_shrunk_covariance`). Every
     channel's variance is at least floor^2 plus its median snapshot standard error squared."""
     m = series[0].D.shape[1]
-    diffs = []
+    diffs, partial = [], []
     ses = []
     for s in series:
         ok = np.all(np.isfinite(s.D), axis=1)
         Dk = s.D[ok]
         if Dk.shape[0] >= 2:
             diffs.append(np.diff(Dk, axis=0))
+        if s.D.shape[0] >= 2:
+            partial.append(np.diff(s.D, axis=0))        # NaN where a flight lacks the channel
         ses.append(s.SE[ok])
     X = np.concatenate(diffs) if diffs else np.zeros((0, m))
     se = np.concatenate(ses) if ses else np.zeros((0, m))
+    if not se.size:       # no flight has every channel (two instrumentation standards): all flights
+        se = np.concatenate([s.SE for s in series])
     base = floor ** 2 + (np.nanmedian(se, axis=0) ** 2 if se.size and np.isfinite(se).any() else 0.0)
     base = np.nan_to_num(base, nan=floor ** 2)
     if X.shape[0] >= 4 * m:
@@ -439,8 +443,8 @@ def noise_covariance(series: list[EngineSeries], floor: float) -> np.ndarray:
             keep = md < cut
         C = np.cov(X[keep].T) / 2.0
         C = C / 0.99   # trimming at the 99.9 % point shrinks the estimate slightly
-    elif X.shape[0] >= 2:
-        C = _shrunk_covariance(X) / 2.0
+    elif partial and np.isfinite(np.concatenate(partial)).any():
+        C = _shrunk_covariance(np.concatenate(partial)) / 2.0
     else:
         C = np.zeros((m, m))
     d = np.diag(C).copy()
@@ -452,29 +456,46 @@ def noise_covariance(series: list[EngineSeries], floor: float) -> np.ndarray:
 
 
 def _shrunk_covariance(X: np.ndarray) -> np.ndarray:
-    """Covariance (m, m) of differences X (n, m) too few for a full estimate (n < 4 m: one
-    engine, ``pwl trend`` alone): the channels' robust variances (median absolute deviation)
-    with their correlations shrunk toward none by the Schaefer-Strimmer weight (the estimated
-    variance of the sample correlations over their sum of squares), on the differences whose
-    squared standardised norm is below the chi-square 99.9 % point (an abrupt change left out).
+    """Covariance (m, m) of differences X (n, m; NaN where a flight lacks the channel) too few for
+    a full estimate (n < 4 m: one engine, ``pwl trend`` alone; or no flight with every channel: a
+    fleet of two instrumentation standards): the channels' robust variances (median absolute
+    deviation) with their pairwise correlations (over the differences holding both) shrunk toward
+    none by the Schaefer-Strimmer weight (the estimated variance of the sample correlations over
+    their sum of squares), on the differences whose squared standardised norm is below the
+    chi-square 99.9 % point (an abrupt change left out). A pair seen together on fewer than 4
+    differences is uncorrelated; with pairs missing, the correlations are made positive definite.
     The channels' scatter is strongly correlated (Wf at idle and cruise, T48 and Wf: |r| 0.94-0.98
     over a fleet); taken as independent, a healthy engine's common pattern read as lpt+sensor:T48
-    on 83 of 600 flights of ten 60-flight engines."""
-    mad = 1.4826 * np.median(np.abs(X - np.median(X, axis=0)), axis=0)
-    sd = np.maximum(mad, 1e-300)
-    Z = (X - np.median(X, axis=0)) / sd
-    Z = Z[np.sum(Z ** 2, axis=1) < stats.chi2.ppf(0.999, X.shape[1])]
-    n = Z.shape[0]
+    on 83 of 600 flights of ten 60-flight engines. A fleet without a flight of every channel had
+    no estimate at all (zeros: the floor; 65 of 78 healthy engine-flights alarmed)."""
+    X = X[np.isfinite(X).any(axis=1)]
+    m = X.shape[1]
+    if not X.shape[0]:
+        return np.zeros((m, m))
+    med = np.nanmedian(X, axis=0)
+    mad = np.nan_to_num(1.4826 * np.nanmedian(np.abs(X - med), axis=0))
     C = np.diag(mad ** 2)
-    if n < 4:
+    Z = (X - med) / np.maximum(mad, 1e-300)
+    ok = np.isfinite(Z)
+    Z = Z[np.nansum(Z ** 2, axis=1) < stats.chi2.ppf(0.999, np.maximum(ok.sum(axis=1), 1))]
+    ok = np.isfinite(Z)
+    n = ok.T.astype(float) @ ok                              # (m, m) differences holding both
+    if n.max(initial=0) < 4:
         return C
-    Z = (Z - Z.mean(axis=0)) / np.maximum(Z.std(axis=0, ddof=1), 1e-300)
-    W = Z[:, :, None] * Z[:, None, :]                      # (n, m, m)
-    R = W.mean(axis=0) * n / (n - 1)
-    var = ((W - W.mean(axis=0)) ** 2).sum(axis=0) * n / (n - 1) ** 3
-    off = ~np.eye(R.shape[0], dtype=bool)
-    lam = float(np.clip(var[off].sum() / max((R[off] ** 2).sum(), 1e-300), 0.0, 1.0))
-    R = np.where(off, (1.0 - lam) * R, 1.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        Z = np.nan_to_num((Z - np.nanmean(Z, axis=0)) / np.nanstd(Z, axis=0, ddof=1))
+        W = Z[:, :, None] * Z[:, None, :]                    # (rows, m, m); 0 where a channel lacks
+        mean = W.sum(axis=0) / n
+        R = W.sum(axis=0) / (n - 1)
+        var = ((W ** 2).sum(axis=0) - n * mean ** 2) * n / (n - 1) ** 3
+    seen = (n >= 4) & ~np.eye(m, dtype=bool)
+    lam = float(np.clip(var[seen].sum() / max((R[seen] ** 2).sum(), 1e-300), 0.0, 1.0))
+    R = np.where(seen, (1.0 - lam) * R, 0.0) + np.eye(m)
+    if not ok.all():             # correlations of different pairs of rows: made positive definite
+        w, V = np.linalg.eigh(R)
+        R = (V * np.maximum(w, 1e-3)) @ V.T
+        d = np.sqrt(np.diag(R))
+        R = (R + R.T) / (2.0 * np.outer(d, d))
     return R * np.outer(mad, mad)
 
 
