@@ -159,6 +159,23 @@ def test_a_fleet_of_two_instrumentation_standards_has_its_scatter():
     assert alarms <= 0.02 * flights + 3 * np.sqrt(0.02 * flights), (alarms, flights)
 
 
+def test_a_sensor_fitted_after_the_first_flights_keeps_the_fault_found():
+    """Channel 0 missing on the first 6 flights (a sensor retrofitted, or dead from delivery), a
+    fan loss at flight 6: once the channel was present on half the flights it was taken in, every
+    flight without it dropped -- the baseline with them -- and the fault found was 'ok' from then
+    on. A channel the baseline's first flights mostly lack is left out instead."""
+    rng = np.random.default_rng(3)
+    S = synthetic_signatures()
+    sd = 1e-3
+    bank = {h.name: h for h in hypotheses(COLUMNS)}
+    D = rng.normal(0, sd, (16, 6))
+    D[6:] += S[:, bank["fan"].columns] @ np.array([-0.02, -0.01])
+    D[:6, 0] = np.nan
+    rows = diagnose_engine(series(D, S), np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0))
+    for r in rows[6:]:
+        assert (r.detected, r.cls, r.onset) == (1, "fan", 6), (r.flight, r.detected, r.cls, r.onset)
+
+
 @pytest.mark.parametrize("cls,theta", [("fan", [-0.02, -0.01]), ("hpt", [-0.015, 0.008]),
                                        ("sensor:B", [0.8]), ("sensor:C", [-1.5])])
 def test_a_step_is_detected_isolated_and_sized(cls, theta):

@@ -1266,7 +1266,11 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
             continue
         # channels with data on this flight and on most earlier flights; flights lacking one are skipped
         upto = present[: k + 1]
-        keep = present[k] & (upto.mean(axis=0) >= 0.5)
+        # ... and on most of the baseline's first flights: a sensor fitted later (or dead from
+        # delivery) taken in once present on half the flights dropped every flight before it, the
+        # baseline with them, and a fault found before was no longer seen (an HPC loss 'ok' from
+        # flight 11 when T24 had been missing on flights 0-5)
+        keep = present[k] & (upto.mean(axis=0) >= 0.5) & (present[first: first + cfg.n_base + 1].mean(axis=0) >= 0.5)
         dec.missing = _missing(es.channels, present[k])
         rowsok = np.flatnonzero(np.all(upto[:, keep], axis=1))
         rowsok = rowsok[(rowsok >= first) & ~np.isin(rowsok, changed_in_flight)]
