@@ -83,6 +83,18 @@ def series(D, S, engine="E"):
                         ["a", "b"], [])
 
 
+def stepped(seed, n, faults, sd=1e-3):
+    """Synthetic deviations (n, 6) of noise ``sd`` with a step per (class, theta, onset) of
+    ``faults``, and the signatures: (D, S)."""
+    rng = np.random.default_rng(seed)
+    S = synthetic_signatures()
+    bank = {h.name: h for h in hypotheses(COLUMNS)}
+    D = rng.normal(0, sd, (n, 6))
+    for cls, theta, onset in faults:
+        D[onset:] += S[:, bank[cls].columns] @ np.array(theta)
+    return D, S
+
+
 def test_false_alarms_stay_within_the_design_rate():
     """No change at all: per engine-flight false alarms <= alpha (Bonferroni is conservative)."""
     rng = np.random.default_rng(0)
@@ -164,14 +176,9 @@ def test_a_sensor_fitted_after_the_first_flights_keeps_the_fault_found():
     fan loss at flight 6: once the channel was present on half the flights it was taken in, every
     flight without it dropped -- the baseline with them -- and the fault found was 'ok' from then
     on. A channel the baseline's first flights mostly lack is left out instead."""
-    rng = np.random.default_rng(3)
-    S = synthetic_signatures()
-    sd = 1e-3
-    bank = {h.name: h for h in hypotheses(COLUMNS)}
-    D = rng.normal(0, sd, (16, 6))
-    D[6:] += S[:, bank["fan"].columns] @ np.array([-0.02, -0.01])
+    D, S = stepped(3, 16, [("fan", [-0.02, -0.01], 6)])
     D[:6, 0] = np.nan
-    rows = diagnose_engine(series(D, S), np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0))
+    rows = diagnose_engine(series(D, S), np.eye(6) * 1e-6, DiagnosisConfig(eps=0.0))
     for r in rows[6:]:
         assert (r.detected, r.cls, r.onset) == (1, "fan", 6), (r.flight, r.detected, r.cls, r.onset)
 
@@ -238,14 +245,8 @@ def test_two_faults_on_consecutive_flights_are_both_found():
     one change of neither (a pair, a drift) and later flights reported the fan's 'recoveries'.
     Now, measured from the step found the flight before, flight 6's own change is tested: the
     HPT loss from flight 6, sized, with the fan named in ``earlier``."""
-    rng = np.random.default_rng(21)
-    S = synthetic_signatures()
-    sd = 1e-3
-    bank = {h.name: h for h in hypotheses(COLUMNS)}
-    D = rng.normal(0, sd, (14, 6))
-    D[5:] += S[:, bank["fan"].columns] @ np.array([-0.02, -0.01])
-    D[6:] += S[:, bank["hpt"].columns] @ np.array([-0.015, 0.008])
-    rows = diagnose_engine(series(D, S), np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0))
+    D, S = stepped(21, 14, [("fan", [-0.02, -0.01], 5), ("hpt", [-0.015, 0.008], 6)])
+    rows = diagnose_engine(series(D, S), np.eye(6) * 1e-6, DiagnosisConfig(eps=0.0))
     assert (rows[5].cls, rows[5].onset) == ("fan", 5)
     for r in rows[6:]:
         assert (r.detected, r.cls, r.kind, r.onset, r.earlier) == (1, "hpt", "step", 6, "fan@5"), \
