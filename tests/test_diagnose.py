@@ -183,6 +183,31 @@ def test_a_sensor_fitted_after_the_first_flights_keeps_the_fault_found():
         assert (r.detected, r.cls, r.onset) == (1, "fan", 6), (r.flight, r.detected, r.cls, r.onset)
 
 
+def test_a_fleet_of_two_instrumentation_standards_has_its_references():
+    """The fleet's normal level and wear and its fleet-wide changes counted only engines with
+    flights of every channel: with half the engines lacking channel 0 and half channel 1 there
+    were none, so a recalibration of sensor C on every engine at flight 8 was each engine's own
+    fault. Now each engine counts on the channels it has: all 12 eligible, the change found
+    common, sensor C +1.0 (the drawn bias) within 10 %, and the level reference's health median
+    within its spread of the drawn 0."""
+    from pwl.fleet.diagnose import common_steps, level_reference
+    S = synthetic_signatures()
+    sd = 1e-3
+    out = []
+    for e in range(12):
+        D, _ = stepped(100 + e, 16, [("sensor:C", [1.0], 8)], sd=sd)
+        D[:, e % 2] = np.nan
+        out.append(series(D, S, engine=f"E{e}"))
+    Sigma = np.eye(6) * sd ** 2
+    cfg = DiagnosisConfig()
+    (c,) = common_steps(out, Sigma, cfg)
+    assert (c.onset, c.cls, c.eligible) == (8, "sensor:C", 12) and c.alike >= 10
+    assert float(c.detail.split("=")[1]) == pytest.approx(1.0, rel=0.1)
+    lev = level_reference(out, Sigma, cfg)
+    assert lev is not None and lev.engines == 12
+    assert np.all(np.abs(lev.median) <= 3 * lev.spread + 1e-4)
+
+
 @pytest.mark.parametrize("cls,theta", [("fan", [-0.02, -0.01]), ("hpt", [-0.015, 0.008]),
                                        ("sensor:B", [0.8]), ("sensor:C", [-1.5])])
 def test_a_step_is_detected_isolated_and_sized(cls, theta):

@@ -531,6 +531,21 @@ class FleetNorm:
         return Sh @ self.median, (Sh * self.spread ** 2) @ Sh.T + np.diag(self.rest[idx] ** 2)
 
 
+def _usable(es: EngineSeries, Sigma: np.ndarray):
+    """(flights (n,) bool, channels (k,) int, whitening (k, k)) of an engine for the fleet's
+    references: the channels it has on at least half of its flights with data (an engine without a
+    sensor, an older standard, is judged on the others), the flights holding all of them, and the
+    whitening of Sigma on them. An engine with every channel: all of them, as before. Counting
+    only flights with every channel of the fleet, a fleet of two instrumentation standards had no
+    reference at all: a fleet-wide T48 recalibration alarmed every engine, a calibration level of
+    +31 K on T48 was missed."""
+    have = np.isfinite(es.D)
+    flown = have.any(axis=1)
+    idx = np.flatnonzero(have[flown].mean(axis=0) >= 0.5) if flown.any() else np.arange(es.D.shape[1])
+    ok = np.all(have[:, idx], axis=1)
+    return ok, idx, np.linalg.inv(np.linalg.cholesky(Sigma[np.ix_(idx, idx)]))
+
+
 def _fleet_norm(series: list[EngineSeries], Sigma: np.ndarray, cfg: "DiagnosisConfig", per_engine,
                 leverage: bool = False) -> FleetNorm | None:
     """The median and 1.4826 x median absolute deviation over the engines with at least
@@ -544,25 +559,31 @@ def _fleet_norm(series: list[EngineSeries], Sigma: np.ndarray, cfg: "DiagnosisCo
     if cols.size == 0:
         return None
     vals, rest = [], []
-    Wt = np.linalg.inv(np.linalg.cholesky(Sigma))
+    m = series[0].D.shape[1]
     for es in series:
-        ok = np.all(np.isfinite(es.D), axis=1)
+        ok, idx, Wt = _usable(es, Sigma)
         if ok.sum() < cfg.wear_flights:
             continue
-        Sh = np.nanmean(es.S[ok], axis=0)[:, cols]
-        v = per_engine(es.D[ok], flight_numbers(es)[ok], es.engine)
+        Sh = np.nanmean(es.S[ok][:, idx], axis=0)[:, cols]
+        v = per_engine(es.D[ok][:, idx], flight_numbers(es)[ok], es.engine, Wt)
         vals.append(np.linalg.lstsq(Wt @ Sh, Wt @ v, rcond=None)[0])
-        rest.append(v - Sh @ vals[-1])
+        r = v - Sh @ vals[-1]
         if leverage:     # the fit takes up part of each channel's own scatter (m - p of m channels' worth left)
             A = Wt @ Sh
-            rest[-1] /= np.sqrt(np.clip(1.0 - np.sum(A * np.linalg.pinv(A).T, axis=1), 1e-3, None))
+            r /= np.sqrt(np.clip(1.0 - np.sum(A * np.linalg.pinv(A).T, axis=1), 1e-3, None))
+        rest.append(np.full(m, np.nan))
+        rest[-1][idx] = r
     if len(vals) < cfg.wear_engines:
         return None
     def robust(V):
-        med = np.median(V, axis=0)
-        return med, 1.4826 * np.median(np.abs(V - med), axis=0)
+        med = np.nanmedian(V, axis=0)
+        return med, 1.4826 * np.nanmedian(np.abs(V - med), axis=0)
     med, spread = robust(np.array(vals))
-    return FleetNorm(cols, [series[0].columns[j] for j in cols], med, spread, len(vals), robust(np.array(rest))[1])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)      # a channel no engine of the fleet has
+        left = robust(np.array(rest))[1]
+    left = np.where(np.isfinite(left), left, np.nanmax(left) if np.isfinite(left).any() else 0.0)
+    return FleetNorm(cols, [series[0].columns[j] for j in cols], med, spread, len(vals), left)
 
 
 def wear_reference(series: list[EngineSeries], Sigma: np.ndarray,
@@ -577,9 +598,7 @@ def wear_reference(series: list[EngineSeries], Sigma: np.ndarray,
     -0.26 %/flight; truth at most 0.01) and, subtracted from each engine's flights, made its
     flights before it a sensor drift from flight 0. ``steps``: engine -> its steps, when
     already found (:func:`fleet_steps`)."""
-    Wt = np.linalg.inv(np.linalg.cholesky(Sigma))
-
-    def slope(D, t, engine):
+    def slope(D, t, engine, Wt):
         own = steps[engine] if steps is not None else engine_steps(D, Wt, t, cfg)
         X = np.column_stack([np.ones_like(t), t - t.mean()] + [_shape(t, s, "step") for s in own])
         return np.linalg.lstsq(X, D, rcond=None)[0][1]
@@ -663,12 +682,11 @@ def fleet_steps(series: list[EngineSeries], Sigma: np.ndarray, cfg: DiagnosisCon
     """engine -> the flight numbers of its steps (:func:`engine_steps`) over its complete
     flights, for every engine with at least ``cfg.wear_flights`` of them: found once for the
     fleet's normal wear and its common steps."""
-    Wt = np.linalg.inv(np.linalg.cholesky(Sigma))
     out = {}
     for es in series:
-        ok = np.all(np.isfinite(es.D), axis=1)
+        ok, idx, Wt = _usable(es, Sigma)
         if ok.sum() >= cfg.wear_flights:
-            out[es.engine] = engine_steps(es.D[ok], Wt, flight_numbers(es)[ok], cfg)
+            out[es.engine] = engine_steps(es.D[ok][:, idx], Wt, flight_numbers(es)[ok], cfg)
     return out
 
 
@@ -684,22 +702,24 @@ def common_steps(series: list[EngineSeries], Sigma: np.ndarray,
     change (probe fleet P4: 12 engines, five classes at flight 10, raised the fleet-wide
     warning). ``steps``: as :func:`fleet_steps`, when already found."""
     eng = []
-    Wt = np.linalg.inv(np.linalg.cholesky(Sigma))
     steps = fleet_steps(series, Sigma, cfg) if steps is None else steps
     for es in series:
-        ok = np.all(np.isfinite(es.D), axis=1)
+        ok, idx, Wt = _usable(es, Sigma)
         if es.engine in steps:
-            eng.append((es, es.D[ok], flight_numbers(es)[ok], np.nanmean(es.S[ok], axis=0), steps[es.engine]))
+            eng.append((es, es.D[ok][:, idx], Wt, flight_numbers(es)[ok], np.nanmean(es.S[ok][:, idx], axis=0),
+                        steps[es.engine]))
     if len(eng) < cfg.wear_engines:
         return []
     bank = hypotheses(series[0].columns, cfg.pairs)
     isolated = []                                # (engine, flight number, hypothesis index, fit)
-    for es, D, t, S, taus in eng:
+    for es, D, Wt, t, S, taus in eng:
+        # the hypotheses its channels can test (a bias of a sensor it lacks is not)
+        can = [i for i, h in enumerate(bank) if np.linalg.norm(S[:, h.columns], axis=0).min() > 1e-9]
         for tau in taus:
-            got = _fit_changes(D, Wt, S, t, [tau], "step", bank, cfg.eps, trend=cfg.wear,
+            got = _fit_changes(D, Wt, S, t, [tau], "step", [bank[i] for i in can], cfg.eps, trend=cfg.wear,
                                steps=[s for s in taus if s != tau])
-            _, hi, _, th, _, _ = max(got, key=lambda f: f[2] - bank[f[1]].cost(cfg))
-            isolated.append((es.engine, tau, hi, th))
+            _, hi, _, th, _, _ = max(got, key=lambda f: f[2] - bank[can[f[1]]].cost(cfg))
+            isolated.append((es.engine, tau, can[hi], th))
     at: dict = {}
     for s in isolated:
         at.setdefault(s[1], []).append(s)
@@ -776,7 +796,7 @@ def level_reference(series: list[EngineSeries], Sigma: np.ndarray,
     small: with sensors in the level test, 6 of 792 engines of synthetic fleets with normal
     calibration scatter read a false sensor level (the wear's is left as it was: scaled, it lost
     an HPC wear of 0.05 %/flight on probe fleet C)."""
-    return _fleet_norm(series, Sigma, cfg, lambda D, t, engine: D[: cfg.n_base + 1].mean(axis=0), leverage=True)
+    return _fleet_norm(series, Sigma, cfg, lambda D, t, engine, Wt: D[: cfg.n_base + 1].mean(axis=0), leverage=True)
 
 
 @dataclass
