@@ -140,7 +140,7 @@ class Inputs(NamedTuple):
 
 class Model(NamedTuple):
     """The packed model (read only; :meth:`PackedModel.record`)."""
-    trim_tab: np.ndarray   # (trim nodes, nx+nu+ny+nz+1) trims, corrected units; 1 if filled
+    trim_tab: np.ndarray   # (trim nodes, nx+nu+ny+nz [+1]) trims, corrected units [; 1 if filled]
     dyn_tab: np.ndarray    # (dyn nodes, block) A_a..K (+ Q_a, R online): :func:`block_layout`
     dims: np.ndarray       # int64 [nx, nu, ny, nz, nq, nh]
     ex: np.ndarray         # (nc, 2) the distinct correction exponent pairs; pair 0 is (0, 0)
@@ -163,6 +163,7 @@ class Model(NamedTuple):
     ko_avail: np.ndarray   # int64 (dyn nodes * ny,) 0 none, 1 gain, 2 gain and health held
     sub_tab: np.ndarray    # (dyn nodes, na*na + ny*ny) steady a-priori P and R, row-major: the
                            # update from any subset of sensors (steady mode; else (1, 0))
+    filled_col: int        # trim_tab's column that is 1 on filled nodes (FLAG_TRIM_FILLED); -1: none
 
 
 class Grids(NamedTuple):
@@ -390,7 +391,8 @@ def _interpolate(io, model, grids, filt, w, k, osl, ost, cs):
         flags |= FLAG_DYN_OUTSIDE
     m = corner_weights(filt.t_idx, w.t_frac, grids.t_str, w.t_wts, w.t_rows)
     interp_rows(model.trim_tab, w.t_wts, w.t_rows, m, w.tw)
-    if w.tw[_u(w.tw.shape[0] - 1)] > 1e-9:      # the trim table's last column: 1 on filled nodes
+    nt = model.filled_col       # the trim table's column that is 1 on filled nodes (-1: none filled)
+    if nt >= 0 and w.tw[_u(nt)] > 1e-9:
         flags |= FLAG_TRIM_FILLED
     m = corner_weights(filt.d_idx, w.d_frac, grids.d_str, w.d_wts, w.d_rows)
     interp_rows(model.dyn_tab, w.d_wts, w.d_rows, m, w.dw)
@@ -1074,8 +1076,8 @@ def augmented(db: GainDatabase):
 class PackedModel:
     """A database packed for the kernel: one contiguous row per grid node.
 
-    trim_tab: (trim nodes, nx+nu+ny+nz+1) = [x, u, y, z, filled] (filled: 1 where the build
-    did not compute the trim, FLAG_TRIM_FILLED); dyn_tab: (dyn nodes, block) =
+    trim_tab: (trim nodes, nx+nu+ny+nz [+1]) = [x, u, y, z (, filled)] (filled, when the build
+    did not compute some trim: 1 on those nodes, FLAG_TRIM_FILLED); dyn_tab: (dyn nodes, block) =
     [A_a[:nx], B_a[:nx] row-major; C_a, D_a, F_a, G_a, K column-major] (the tuner rows of A_a
     and B_a, [0 I] and [0], are not stored: the kernel applies them), and with ``online`` also
     [Q_a, R] row-major, with p_tab (dyn nodes, na*na) the steady-state a-priori P; the rest are
@@ -1119,9 +1121,10 @@ class PackedModel:
         if online and zones is not None:
             raise UsageError("online covariance and zone gains exclude each other")
         tg, dg = db.trim_grid, db.dyn_grid
-        filled = (db.trim_status != 0).astype(float).reshape(tg.size, 1)
-        trim_tab = np.ascontiguousarray(np.concatenate(
-            [db.trim[k].reshape(tg.size, -1) for k in "xuyz"] + [filled], axis=1))
+        cols = [db.trim[k].reshape(tg.size, -1) for k in "xuyz"]
+        if np.any(db.trim_status != 0):       # the filled nodes' column, only where there are some
+            cols.append((db.trim_status != 0).astype(float).reshape(tg.size, 1))
+        trim_tab = np.ascontiguousarray(np.concatenate(cols, axis=1))
         aug = augmented(db)
         if not tune:
             aug["K"] = aug["K"].copy()
@@ -1182,7 +1185,7 @@ class PackedModel:
                      bool(self.online), self.p_tab, np.ascontiguousarray(V_pinv), self.z_gains,
                      self.z_labels, np.ascontiguousarray(gate, dtype=np.float64), int(stuck_n), int(settle_n),
                      int(readmit_n), self.ko_tab, self.ko_avail,
-                     self.sub_tab)
+                     self.sub_tab, nx + nu + ny + nz if self.trim_tab.shape[1] > nx + nu + ny + nz else -1)
 
     def grids(self, db: GainDatabase) -> Grids:
         """The kernel's :class:`Grids` record of ``db`` (the database this model packs)."""

@@ -531,6 +531,11 @@ class FleetNorm:
         return Sh @ self.median, (Sh * self.spread ** 2) @ Sh.T + np.diag(self.rest[idx] ** 2)
 
 
+def whitening(Sigma: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """Wt (k, k) with Wt @ d ~ N(0, I) for deviations d of the channels ``idx`` (k,) of scatter Sigma."""
+    return np.linalg.inv(np.linalg.cholesky(Sigma[np.ix_(idx, idx)]))
+
+
 def _usable(es: EngineSeries, Sigma: np.ndarray):
     """(flights (n,) bool, channels (k,) int, whitening (k, k)) of an engine for the fleet's
     references: the channels it has on at least half of its flights with data (an engine without a
@@ -543,7 +548,7 @@ def _usable(es: EngineSeries, Sigma: np.ndarray):
     flown = have.any(axis=1)
     idx = np.flatnonzero(have[flown].mean(axis=0) >= 0.5) if flown.any() else np.arange(es.D.shape[1])
     ok = np.all(have[:, idx], axis=1)
-    return ok, idx, np.linalg.inv(np.linalg.cholesky(Sigma[np.ix_(idx, idx)]))
+    return ok, idx, whitening(Sigma, idx)
 
 
 def _fleet_norm(series: list[EngineSeries], Sigma: np.ndarray, cfg: "DiagnosisConfig", per_engine,
@@ -1306,7 +1311,7 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
             # hypotheses testable with these channels (a bias of a channel without data is not)
             bank = [h for h in bank_all if np.linalg.norm(Sbar_all[:, h.columns], axis=0).min() > 1e-9]
             t = number[rowsok]
-            Wt = np.linalg.inv(np.linalg.cholesky(Sigma[np.ix_(idx, idx)]))
+            Wt = whitening(Sigma, idx)
             if offsets is None and level is not None and first == 0:
                 offsets = _calibration(D, Wt, Sbar_all, t, bank, cfg, level.at(Sbar_all, idx), len(bank), es.columns)
             if offsets:
