@@ -178,7 +178,7 @@ def test_a_sensor_fitted_after_the_first_flights_keeps_the_fault_found():
     on. A channel the baseline's first flights mostly lack is left out instead."""
     D, S = stepped(3, 16, [("fan", [-0.02, -0.01], 6)])
     D[:6, 0] = np.nan
-    rows = diagnose_engine(series(D, S), np.eye(6) * 1e-6, DiagnosisConfig(eps=0.0))
+    rows = diagnose_engine(series(D, S), np.eye(6) * 1e-6, DiagnosisConfig(eps=0.0, curvature=0.0))
     for r in rows[6:]:
         assert (r.detected, r.cls, r.onset) == (1, "fan", 6), (r.flight, r.detected, r.cls, r.onset)
 
@@ -218,7 +218,7 @@ def test_a_step_is_detected_isolated_and_sized(cls, theta):
     change = S[:, bank[cls].columns] @ np.array(theta)
     D = rng.normal(0, sd, (10, 6))
     D[6:] += change
-    rows = diagnose_engine(series(D, S), np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0))
+    rows = diagnose_engine(series(D, S), np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0, curvature=0.0))
     assert [r.detected for r in rows[:6]] == [0] * 6
     last = rows[-1]
     assert last.detected and last.cls == cls and last.onset == 6 and last.kind == "step"
@@ -247,20 +247,20 @@ def test_a_fault_that_began_in_flight_is_left_out_of_its_onset_flight(monkeypatc
     es = series(D, S)
     es.channels = [f"c{j}@{r}" for r in range(2) for j in range(3)]
     Sigma = np.eye(6) * sd ** 2
-    rows = diagnose_engine(es, Sigma, DiagnosisConfig(eps=0.0))
+    rows = diagnose_engine(es, Sigma, DiagnosisConfig(eps=0.0, curvature=0.0))
     for r in rows[7:]:
         assert (r.detected, r.cls, r.kind, r.onset) == (1, "fan", "step", 6), (r.flight, r.cls, r.kind, r.onset)
     keep = np.r_[0:6, 7:n]
     ref = series(D[keep], S)
     ref.channels = es.channels
     ref.flights = [es.flights[i] for i in keep]
-    ref_last = diagnose_engine(ref, Sigma, DiagnosisConfig(eps=0.0))[-1]
+    ref_last = diagnose_engine(ref, Sigma, DiagnosisConfig(eps=0.0, curvature=0.0))[-1]
     assert rows[-1].magnitude == pytest.approx(ref_last.magnitude, rel=1e-9)
     drift = rng.normal(0, sd, (n, 6)) + np.outer(np.clip(np.arange(n) - 5, 0, None), change / 4)
     assert not any(dg._transition(drift[: k + 1], np.eye(6) / sd, np.array(["0"] * 3 + ["1"] * 3))
                    for k in range(4, n))
     monkeypatch.setattr(dg, "_transition", lambda *a: False)     # the old diagnosis
-    old = diagnose_engine(es, Sigma, DiagnosisConfig(eps=0.0))
+    old = diagnose_engine(es, Sigma, DiagnosisConfig(eps=0.0, curvature=0.0))
     assert any((r.cls, r.kind, r.onset) != ("fan", "step", 6) for r in old[7:])
 
 
@@ -271,7 +271,7 @@ def test_two_faults_on_consecutive_flights_are_both_found():
     Now, measured from the step found the flight before, flight 6's own change is tested: the
     HPT loss from flight 6, sized, with the fan named in ``earlier``."""
     D, S = stepped(21, 14, [("fan", [-0.02, -0.01], 5), ("hpt", [-0.015, 0.008], 6)])
-    rows = diagnose_engine(series(D, S), np.eye(6) * 1e-6, DiagnosisConfig(eps=0.0))
+    rows = diagnose_engine(series(D, S), np.eye(6) * 1e-6, DiagnosisConfig(eps=0.0, curvature=0.0))
     assert (rows[5].cls, rows[5].onset) == ("fan", 5)
     for r in rows[6:]:
         assert (r.detected, r.cls, r.kind, r.onset, r.earlier) == (1, "hpt", "step", 6, "fan@5"), \
@@ -291,7 +291,7 @@ def test_a_second_fault_after_a_first_is_found_and_named_with_it():
     D = rng.normal(0, sd, (14, 6)) + np.outer(np.arange(14), S[:, 0] * -1e-4)   # some wear
     D[5:] += S[:, bank["fan"].columns] @ np.array([-0.02, -0.01])
     D[10:] += S[:, 5] * 1.0
-    rows = diagnose_engine(series(D, S), np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0))
+    rows = diagnose_engine(series(D, S), np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0, curvature=0.0))
     for r in rows[5:10]:
         assert r.detected and r.cls == "fan" and r.onset == 5 and r.earlier == "", r
     for r in rows[10:]:
@@ -308,7 +308,7 @@ def test_a_component_fault_with_a_sensor_bias_is_one_two_cause_fault():
     sd = 1e-3
     D = rng.normal(0, sd, (10, 6))
     D[6:] += S[:, 2] * -0.02 + S[:, 3] * 0.01 + S[:, 6] * 1.5
-    last = diagnose_engine(series(D, S), np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0))[-1]
+    last = diagnose_engine(series(D, S), np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0, curvature=0.0))[-1]
     assert last.detected and last.cls == "hpt+sensor:C" and last.onset == 6
     est = dict(kv.split("=") for kv in last.detail.split())
     assert float(est["hpt_eff"]) == pytest.approx(-0.02, abs=4 * last.magnitude_std)
@@ -328,9 +328,9 @@ def test_a_sensor_whose_snapshot_stopped_varying_is_stuck_not_biased():
     es = series(D, S)
     es.channels = ["A@0", "B@0", "C@0", "c3@0", "c4@0", "c5@0"]   # sensors A, B, C read channels 0-2
     es.SE[:] = 1e-4
-    biased = diagnose_engine(es, np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0))
+    biased = diagnose_engine(es, np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0, curvature=0.0))
     es.SE[6:, 0] = 1e-12                  # sensor A's channel: 0 but for rounding
-    stuck = diagnose_engine(es, np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0))
+    stuck = diagnose_engine(es, np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0, curvature=0.0))
     for b, f in zip(biased[6:], stuck[6:]):
         assert b.detected and b.cls == "sensor:A" and b.kind == "step"
         assert f.detected and f.cls == "sensor:A" and f.kind == "stuck" and f.onset == 6
@@ -341,7 +341,7 @@ def test_a_drift_is_reported_with_its_rate():
     S = synthetic_signatures()
     sd = 1e-3
     D = rng.normal(0, sd, (10, 6)) + np.outer(np.arange(10), S[:, 0] * -0.002)  # fan_eff -0.2 %/flight
-    last = diagnose_engine(series(D, S), np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0))[-1]
+    last = diagnose_engine(series(D, S), np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0, curvature=0.0))[-1]
     assert last.detected and last.kind == "drift" and last.cls == "fan"
     assert last.magnitude == pytest.approx(-0.002, rel=0.1)
 
@@ -358,7 +358,7 @@ def test_a_wash_is_a_recovery_and_a_later_fault_is_measured_from_it():
     D = rng.normal(0, sd, (20, 6))
     D[6:] += S[:, bank["fan"].columns] @ np.array([0.02, 0.01])
     D[13:] += S[:, bank["fan"].columns] @ np.array([-0.01, -0.005])
-    rows = diagnose_engine(series(D, S), np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0))
+    rows = diagnose_engine(series(D, S), np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0, curvature=0.0))
     assert [r.detected for r in rows[:13]] == [0] * 13
     washed = [r for r in rows if r.kind == "recovery"]
     assert washed and washed[0].flight == 6 and washed[0].onset == 6 and washed[0].cls == "fan"
@@ -429,7 +429,7 @@ def test_an_engine_noisier_than_the_fleet_is_tested_against_its_own_scatter():
     assert np.median(ratio[:200]) == pytest.approx(9.0, rel=0.15)
     assert np.median(ratio[200:]) == pytest.approx(1.0, rel=0.1) and min(ratio) >= 1.0
     D[6:] += S[:, 4] * 4.0                                     # sensor A +4: 40 fleet sigmas
-    last = diagnose_engine(series(D, S), Sigma, DiagnosisConfig(eps=0.0))[-1]
+    last = diagnose_engine(series(D, S), Sigma, DiagnosisConfig(eps=0.0, curvature=0.0))[-1]
     assert last.detected and last.cls == "sensor:A" and last.onset == 6
 
 
@@ -543,15 +543,15 @@ def test_a_sensor_bias_that_goes_away_is_cleared_and_one_that_comes_back_is_inte
     sd = 1e-3
     D = rng.normal(0, sd, (26, 6))
     D[6:12] += S[:, 5] * 2.0
-    rows = diagnose_engine(series(D[:16], S), np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0))
+    rows = diagnose_engine(series(D[:16], S), np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0, curvature=0.0))
     assert all(r.detected and r.cls == "sensor:B" and r.kind == "step" and r.onset == 6 for r in rows[7:12])
     assert all(not r.detected and r.kind == "cleared" and r.status == "cleared" and r.onset == 12
                for r in rows[13:16])
     D[16:19] += S[:, 5] * 2.0          # on again 16-18, off from 19
-    rows = diagnose_engine(series(D, S), np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0))
+    rows = diagnose_engine(series(D, S), np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0, curvature=0.0))
     assert all(r.detected and r.cls == "sensor:B" and r.kind == "intermittent" and r.onset == 6
                for r in rows[17:])
-    clean = diagnose_engine(series(rng.normal(0, sd, (26, 6)), S), np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0))
+    clean = diagnose_engine(series(rng.normal(0, sd, (26, 6)), S), np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0, curvature=0.0))
     assert not any(r.detected or r.kind for r in clean)
 
 
@@ -564,7 +564,7 @@ def test_a_fault_at_the_second_or_third_flight_is_a_step_with_its_onset(onset):
     sd = 1e-3
     D = rng.normal(0, sd, (15, 6))
     D[onset:] += S[:, 5] * 2.0
-    rows = diagnose_engine(series(D, S), np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0))
+    rows = diagnose_engine(series(D, S), np.eye(6) * sd ** 2, DiagnosisConfig(eps=0.0, curvature=0.0))
     assert all(r.detected and r.cls == "sensor:B" and r.kind == "step" and r.onset == onset for r in rows[3:])
 
 

@@ -17,7 +17,7 @@ from test_diagnose import COLUMNS, series, synthetic_signatures
 
 SD = 1e-3
 SIGMA = np.eye(6) * SD ** 2
-CFG = DiagnosisConfig(eps=0.0)
+CFG = DiagnosisConfig(eps=0.0, curvature=0.0)
 BANK = {h.name: h for h in hypotheses(COLUMNS)}
 
 

@@ -70,7 +70,7 @@ import re
 import warnings
 from copy import copy
 from dataclasses import dataclass, field
-from functools import partial
+from functools import lru_cache, partial
 from typing import NamedTuple
 
 import h5py
@@ -95,7 +95,9 @@ class DiagnosisConfig:
     drift reported (per flight, same norm); floor: smallest flight-to-flight scatter assumed per
     channel (relative); wear_engines, wear_flights: a fleet of at least wear_engines engines
     with wear_flights complete flights each gives the normal wear its engines are tested against
-    (:func:`wear_reference`); eps: relative uncertainty of the signatures; pairs: also test
+    (:func:`wear_reference`); eps: relative uncertainty of the signatures per channel;
+    curvature: a component's loss's second-order error in every channel, per unit of the mean
+    square of its change over the channels (:func:`_curved`); pairs: also test
     changes of two causes (two components, a component and a sensor), at an extra cost ``pair_cost`` (a combined fault is rarer than a single
     one, and must explain more than a large single fault's nonlinearity); wear: the engine's own
     wear line is a nuisance of the step tests (normal wear is not a fault); rollout: a change of
@@ -110,6 +112,7 @@ class DiagnosisConfig:
     wear_flights: int = 8
     floor: float = 2e-4
     eps: float = 0.1
+    curvature: float = 4.0
     pairs: bool = True
     pair_cost: float = 10.0
     wear: bool = True
@@ -721,7 +724,7 @@ def common_steps(series: list[EngineSeries], Sigma: np.ndarray,
         # the hypotheses its channels can test (a bias of a sensor it lacks is not)
         can = [i for i, h in enumerate(bank) if np.linalg.norm(S[:, h.columns], axis=0).min() > 1e-9]
         for tau in taus:
-            got = _fit_changes(D, Wt, S, t, [tau], "step", [bank[i] for i in can], cfg.eps, trend=cfg.wear,
+            got = _fit_changes(D, Wt, S, t, [tau], "step", [bank[i] for i in can], cfg, trend=cfg.wear,
                                steps=[s for s in taus if s != tau])
             _, hi, _, th, _, _ = max(got, key=lambda f: f[2] - bank[can[f[1]]].cost(cfg))
             isolated.append((es.engine, tau, can[hi], th))
@@ -840,7 +843,7 @@ def _shape(t: np.ndarray, tau: float, shape: str) -> np.ndarray:
     return np.maximum(0.0, t - tau + 1.0) if shape == "ramp" else (t >= tau).astype(float)
 
 
-def _fit_changes(D, Wt, S, t, taus, shape, bank, eps, trend=False, steps=(), spread=None, level=True, ramps=()):
+def _fit_changes(D, Wt, S, t, taus, shape, bank, cfg, trend=False, steps=(), spread=None, level=True, ramps=()):
     """For each change point tau and hypothesis: statistic, estimate, its covariance.
 
     D (n, m) deviations at flights t (n,), Wt (m, m) whitening (Wt @ d ~ N(0, I)), S (m, ncol)
@@ -850,10 +853,11 @@ def _fit_changes(D, Wt, S, t, taus, shape, bank, eps, trend=False, steps=(), spr
     line; and a step per channel at each flight number of ``steps`` (faults already found: a new
     change is measured from them, its uncertainty growing by eps of their size), and a ramp
     per channel from each (onset, rate (m,)) of ``ramps`` (drifts found, with their fitted
-    rates). The signatures are uncertain by a fraction ``eps`` of the change they describe
+    rates). The signatures are uncertain by a fraction ``cfg.eps`` of the change they describe
     (linearisation at the database's nodes, fault sizes beyond the linear range), so the
     covariance of the change estimate grows by (eps * change)^2 per channel, the change being
-    the observed one (common to every hypothesis, which keeps their statistics comparable).
+    the observed one (common to every hypothesis, which keeps their statistics comparable). A
+    pair that is one of its components' curvature (:func:`_curved`) is not fitted.
     ``spread`` (m, m): a covariance the change estimate also has (the fleet's normal wear rates
     for a wear ramp, :func:`wear_reference`).
     Returns a list of (tau, hypothesis index, T, theta, cov, E) with E = g2 |Wt delta|^2 the
@@ -877,8 +881,11 @@ def _fit_changes(D, Wt, S, t, taus, shape, bank, eps, trend=False, steps=(), spr
     # leaves in a new change is eps of its own size per channel: a step's coefficient here; a
     # drift's rate as found times its flights so far (its coefficient here would hold much of
     # any later change)
+    eps = cfg.eps
     sizes = [(Xp @ D)[X.shape[1] - len(steps):]] + [rate[None] * (t[-1] - r + 1.0) for r, rate in ramps]
     known = np.sum((eps * np.vstack(sizes)) ** 2, axis=0)
+    within = _within(tuple((h.name, tuple(h.columns)) for h in bank))
+    wnorm2 = float(np.linalg.norm(Wt, 2)) ** 2 if within else 0.0
     for tau in taus:
         f = _shape(t, tau, shape)
         g = f - X @ (Xp @ f)                   # the nuisance (level, wear line) projected out
@@ -893,6 +900,7 @@ def _fit_changes(D, Wt, S, t, taus, shape, bank, eps, trend=False, steps=(), spr
         Lw = np.linalg.cholesky(Cw)
         v = np.linalg.solve(Lw, Wt @ delta)    # whitened change estimate, N(0, I) if none
         Sw = np.linalg.solve(Lw, Wt @ S)
+        fits = {}
         for his, cols in groups:               # the hypotheses of one rank at once
             A = Sw[:, cols].transpose(1, 0, 2)                 # (hypotheses, m, rank)
             G = A.transpose(0, 2, 1) @ A
@@ -901,7 +909,51 @@ def _fit_changes(D, Wt, S, t, taus, shape, bank, eps, trend=False, steps=(), spr
             b = A.transpose(0, 2, 1) @ v
             th = (Gi @ b[:, :, None])[:, :, 0]
             T = np.sum(b * th, axis=1)
-            out += [(tau, hi, float(T[i]), th[i], Gi[i], E) for i, hi in enumerate(his) if ok[i]]
+            fits.update((hi, (tau, hi, float(T[i]), th[i], Gi[i], E)) for i, hi in enumerate(his) if ok[i])
+        curved = _curved(fits, within, bank, S, Wt, Cw, delta, g2 * wnorm2, cfg)
+        out += [f for hi, f in fits.items() if hi not in curved]
+    return out
+
+
+@lru_cache(maxsize=64)
+def _within(bank: tuple) -> dict[int, list[int]]:
+    """Bank index of each single component -> the indices of the pairs that hold it; ``bank``
+    ((name, columns), ...) as a key (the same few banks are fitted thousands of times)."""
+    single = [i for i, (name, _) in enumerate(bank) if "+" not in name and not name.startswith("sensor:")]
+    return {i: [j for j, (name, cols) in enumerate(bank) if "+" in name and set(bank[i][1]) < set(cols)]
+            for i in single}
+
+
+def _curved(fits: dict, within: dict, bank, S, Wt, Cw, delta, scale, cfg) -> set:
+    """The pairs (bank indices) that are a single component's loss beyond the signatures' linear
+    range. A loss of one component moves the channels by more than its signature of the fitted
+    size says, second order in the size and as much in channels the signature barely moves as in
+    the others (the turbofan's HPT at -8 %: T30 +0.9 % where its signature gives -0.6 %); a
+    second component takes that up: HPT and HPC losses of 8 % read 'lpc+hpt' and 'lpc+hpc', LPC
+    at -5 to -11 %. With the component's own curvature, ``cfg.curvature`` times the mean square
+    of its fitted change over the channels per channel, added to the covariance ``Cw`` (whitened
+    by ``Wt``), a pair holding it that no longer gains more than its extra cost is that
+    component's curvature (``scale``: g^T g |Wt|^2, what a variance per channel is at most in
+    units of the change's whitened covariance). ``benchmarks/curvature.py`` measures what a plant
+    needs."""
+    out = set()
+    for c, pairs in within.items():
+        if c not in fits or not any(p in fits for p in pairs):
+            continue
+        a2 = (cfg.curvature * float(np.mean((S[:, bank[c].columns] @ fits[c][3]) ** 2))) ** 2
+        if a2 * scale < 1e-2:                 # negligible against the scatter of the change
+            continue
+        L = np.linalg.cholesky(Cw + a2 * (Wt @ Wt.T))
+        v, Sw = np.linalg.solve(L, Wt @ delta), np.linalg.solve(L, Wt @ S)
+
+        tried = [p for p in pairs if p in fits]
+        gain = {}                              # the pair's fit over the component's, v^T A (A^T A)^-1 A^T v
+        for r in {len(bank[h].columns) for h in [c] + tried}:
+            his = [h for h in [c] + tried if len(bank[h].columns) == r]
+            A = Sw[:, np.array([bank[h].columns for h in his])].transpose(1, 0, 2)
+            b = A.transpose(0, 2, 1) @ v
+            gain.update(zip(his, np.sum(b * np.linalg.solve(A.transpose(0, 2, 1) @ A, b[:, :, None])[:, :, 0], axis=1)))
+        out.update(p for p in tried if gain[p] - gain[c] < bank[p].cost(cfg) - bank[c].cost(cfg))
     return out
 
 
@@ -1031,7 +1083,7 @@ def _sensor_part(dec, D, Wt, S, t, bank, cfg, known, n_tests, es, rowsok) -> Non
     comps = [h for h in bank if "sensor:" not in h.name]
     sensors = [h for h in bank if h.name.startswith("sensor:")]
     cands = comps + [Hypothesis(f"{c.name}+{x.name}", c.columns + x.columns) for c in comps for x in sensors]
-    fits = _fit_changes(D, Wt, S, t, [float(dec.onset)], "step", cands, cfg.eps, trend=cfg.wear,
+    fits = _fit_changes(D, Wt, S, t, [float(dec.onset)], "step", cands, cfg, trend=cfg.wear,
                         **_nuisance(known, dec.onset))
     if not fits:
         return
@@ -1116,7 +1168,7 @@ def _stages(D, Wt, S, t, bank, cfg, wear, known, level=None):
     ((mean (m,), covariance (m, m)) of :meth:`FleetNorm.at`) or None, ``known`` the changes
     found, in the order found (:func:`_known`), and the engine's steps of a fleet-wide change
     (shape ``fleet``: a nuisance of every test, never a decision)."""
-    fit = partial(_fit_changes, D, Wt, S, t, bank=bank, eps=cfg.eps, trend=cfg.wear, **_nuisance(known))
+    fit = partial(_fit_changes, D, Wt, S, t, bank=bank, cfg=cfg, trend=cfg.wear, **_nuisance(known))
     found = [k for k in known if k.shape != "fleet"]
     if found:   # a new change after the changes found, measured from them; else the last one again
         last, new = found[-1], t[t > found[-1].onset]
@@ -1135,7 +1187,7 @@ def _level_fits(D, Wt, S, t, bank, cfg, level) -> list:
     that covariance and no level nuisance: how it is off the fleet's from its first flight."""
     mean, spread = level
     base = slice(0, cfg.n_base + 1)
-    return _fit_changes(D[base] - mean, Wt, S, t[base], t[:1], "step", bank, cfg.eps, spread=spread, level=False)
+    return _fit_changes(D[base] - mean, Wt, S, t[base], t[:1], "step", bank, cfg, spread=spread, level=False)
 
 
 def _calibration(D, Wt, S, t, bank, cfg, level, n_tests, columns) -> list[tuple[int, float]]:
@@ -1184,7 +1236,7 @@ def _first_stages(fit, D, Wt, S, t, bank, cfg, wear, fleet):
     if wear is None:
         return [stage1, [("ramp", _component_wear(partial(fit, trend=False), bank, t[:1], "ramp"))]]
     mean, spread = wear
-    return [stage1, [("wear", _component_wear(partial(_fit_changes, D - np.outer(t, mean), Wt, S, t, eps=cfg.eps,
+    return [stage1, [("wear", _component_wear(partial(_fit_changes, D - np.outer(t, mean), Wt, S, t, cfg=cfg,
                                                       spread=spread, steps=fleet), bank, t[:1], "ramp"))]]
 
 
@@ -1488,7 +1540,7 @@ def _remaining(dec, faults, known, D, Wt, S, t, bank, cfg, n_tests, es) -> list:
     if any(begin <= k.onset < dec.onset for k in known if k.shape == "fleet"):
         return []              # a fleet-wide change in between: what is left cannot be told from it
     use = (t < begin) | (t >= dec.onset)
-    fits = _fit_changes(D[use], Wt, S, t[use], [float(dec.onset)], "step", [Hypothesis("", union)], cfg.eps,
+    fits = _fit_changes(D[use], Wt, S, t[use], [float(dec.onset)], "step", [Hypothesis("", union)], cfg,
                         trend=cfg.wear, **_nuisance([k for k in known if k.onset < begin or k.shape == "fleet"]))
     if not fits:
         return []
