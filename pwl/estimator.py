@@ -45,12 +45,54 @@ _SPIKE = np.finfo(np.float64).max
 
 
 #: a channel logged at a lower rate than the log's rows (empty between its samples: a flight data
-#: recorder's 1-8 Hz words in a 66 Hz export) is held between its samples: at least LOW_RATE_SHARE
-#: of its rows empty, and nine in ten of the steps between its samples at most twice their median,
-#: which is at most LOW_RATE_GAP seconds. Left empty, the operating point had no snapshot, and
-#: sensors logged in turn left two or more out on every row: health never estimated
+#: recorder's 1-8 Hz words in a 66 Hz export) is filled between its samples (then interpolated as
+#: one written with sample-and-hold: :func:`interpolate_held`): at least LOW_RATE_SHARE of its rows
+#: empty, and nine in ten of the steps between its samples at most twice their median, which is at
+#: most LOW_RATE_GAP seconds (67 rows at 15 ms: 1 Hz steps 66 or 67 rows). Left empty, the
+#: operating point had no snapshot, and sensors logged in turn left two or more out on every row:
+#: health never estimated
 LOW_RATE_SHARE = 0.4
 LOW_RATE_GAP = 1.0
+#: a channel written with sample-and-hold (each sample of a 1-8 Hz word repeated on the rows of a
+#: 66 Hz export until the next one) is one whose value changes at HELD_CHANGES rows or more, nine
+#: in ten of them (HELD_SHARE) within HELD_JITTER rows of a regular lattice of 2 rows or more and at
+#: most LOW_RATE_GAP seconds (fitted: 1 Hz on a 66.7 Hz grid changes after 66 or 67 rows), where
+#: samples changing at random rows could not have fitted it (HELD_CHANCE): not a channel that
+#: changes on most rows, a constant or frozen one, nor a quantised one at rest, whose changes
+#: come at irregular intervals. Held channels are found on a log's first HELD_ROWS rows (a run
+#: in chunks finds the same ones as a whole run)
+HELD_CHANGES = 20
+HELD_SHARE = 0.9
+HELD_JITTER = 0.6
+HELD_CHANCE = 1e-6
+HELD_ROWS = 1 << 16
+
+
+def _low_rate_step(x: np.ndarray, max_rows: int) -> int:
+    """The median step (rows) between the samples of channel ``x`` (n,) if it is logged at a
+    lower rate (:data:`LOW_RATE_SHARE`; its samples at most ``max_rows`` rows apart), else 0."""
+    ok = np.isfinite(x)
+    count = np.count_nonzero(ok)
+    if not 3 <= count <= (1.0 - LOW_RATE_SHARE) * x.size:
+        return 0
+    steps = np.diff(np.flatnonzero(ok))
+    med = int(np.median(steps))
+    return med if 2 <= med <= max_rows and np.mean(steps <= 2 * med) >= 0.9 else 0
+
+
+def _low_rate_steps(a: np.ndarray, max_rows: int) -> dict[int, int]:
+    """The low-rate columns of ``a`` (n, k) (:func:`_low_rate_step`): column -> median step."""
+    return {j: m for j in range(a.shape[1]) if (m := _low_rate_step(a[:, j], max_rows))}
+
+
+def _fill_low_rate(a: np.ndarray, j: int, med: int) -> None:
+    """In place: column j of ``a`` holds each sample over the empty rows after it, up to twice
+    ``med`` rows (a longer gap stays empty: a dropout)."""
+    ok = np.isfinite(a[:, j])
+    rows = np.arange(a.shape[0])
+    last = np.maximum.accumulate(np.where(ok, rows, -1))
+    fill = ~ok & (last >= 0) & (rows - last <= 2 * med)
+    a[fill, j] = a[last[fill], j]
 
 
 def hold_low_rate(a: np.ndarray, max_rows: int) -> dict[int, int]:
@@ -58,23 +100,101 @@ def hold_low_rate(a: np.ndarray, max_rows: int) -> dict[int, int]:
     ``max_rows`` rows apart) holds each sample over the empty rows after it, up to twice the
     median step between its samples (a longer gap stays empty: a dropout). Returns column ->
     median step (rows) of the columns held."""
-    held = {}
-    n = a.shape[0]
-    rows = np.arange(n)
-    present = np.isfinite(a)
-    counts = present.sum(axis=0)
-    for j in np.flatnonzero((counts >= 3) & (counts <= (1.0 - LOW_RATE_SHARE) * n)):
-        ok = present[:, j]
-        idx = np.flatnonzero(ok)
-        steps = np.diff(idx)
-        med = int(np.median(steps))
-        if not 2 <= med <= max_rows or np.mean(steps <= 2 * med) < 0.9:
-            continue
-        last = np.maximum.accumulate(np.where(ok, rows, -1))
-        fill = ~ok & (last >= 0) & (rows - last <= 2 * med)
-        a[fill, j] = a[last[fill], j]
-        held[int(j)] = med
+    held = _low_rate_steps(a, max_rows)
+    for j, med in held.items():
+        _fill_low_rate(a, j, med)
     return held
+
+
+def _lattice(new: np.ndarray) -> tuple[float, int]:
+    """(period, how many of them lie on it) of the regular lattice fitted to the rows ``new``
+    (sorted, at least two: where samples start): the period from their gaps of one to three
+    periods (longer gaps: samples that repeated a value), then by least squares, rows ~ phase +
+    period * index, over all of them and again over those within :data:`HELD_JITTER` of it."""
+    d = np.diff(new).astype(np.float64)
+    med = float(np.median(d))
+    p = float(d[d <= 1.5 * med].mean())         # one period: 66 or 67 rows at 1 Hz on 66.7 Hz
+    for _ in range(2):
+        m = np.maximum(np.rint(d / p), 1.0)
+        few = m <= 3
+        p = float(d[few].sum() / m[few].sum())
+    m = np.concatenate([[0.0], np.cumsum(np.maximum(np.rint(d / p), 1.0))])
+    on = np.ones(new.size, dtype=bool)
+    for _ in range(2):
+        if np.count_nonzero(on) < 2 or m[on][0] == m[on][-1]:
+            break
+        mc = m[on] - m[on].mean()
+        p = float(np.dot(mc, new[on] - new[on].mean()) / np.dot(mc, mc))
+        r = new - p * m
+        on = np.abs(r - np.median(r[on])) <= HELD_JITTER
+    return p, int(np.count_nonzero(on))
+
+
+def held_period(x: np.ndarray, max_rows: float) -> float:
+    """The period in rows (2 or more, at most ``max_rows``; not an integer for a rate that does
+    not divide the row rate) of the samples of channel ``x`` (n,) if it is written with
+    sample-and-hold (:data:`HELD_CHANGES`), else 0.0. Vectorised: the rows where a new value
+    starts, the lattice fitted to them (:func:`_lattice`), the share of them on it."""
+    if 2.5 * np.count_nonzero(x[1:] == x[:-1]) < x.size - 1:
+        return 0.0                              # a new value on most rows (cheap: most channels)
+    rows = np.flatnonzero(np.isfinite(x))
+    v = x[rows]
+    new = rows[1:][v[1:] != v[:-1]]             # the rows where a new value starts
+    if new.size < HELD_CHANGES or new.size > 0.6 * rows.size:
+        return 0.0                              # too few to tell, or a value on most rows
+    if not 2.0 <= np.median(np.diff(new)) <= max_rows + 1.0:
+        return 0.0
+    p, on = _lattice(new)
+    if not 2.0 <= p <= max_rows + 0.5:
+        return 0.0
+    chance = min(1.0, 2.0 * HELD_JITTER / p)    # of a change at a random row to fall that close
+    if on < HELD_SHARE * new.size or on * np.log(chance) > np.log(HELD_CHANCE):
+        return 0.0
+    return p
+
+
+def held_channels(a, max_rows: float) -> dict[int, tuple[float, int]]:
+    """The held columns of ``a`` ((n, k), or a sequence of k channels (n,)): column -> (period in
+    rows, and for a channel logged with empty rows between its samples the median step between
+    them, else 0): the low-rate ones (:func:`hold_low_rate`'s test; their period that of the
+    lattice of their samples, :func:`_lattice`) and the ones written with sample-and-hold
+    (:func:`held_period`). Both are the same channel: samples at a regular period, logged two
+    ways."""
+    held = {}
+    for j, x in enumerate(a.T if isinstance(a, np.ndarray) else a):
+        med = _low_rate_step(x, int(max_rows))
+        if med:
+            held[j] = (_lattice(np.flatnonzero(np.isfinite(x)))[0], med)
+        elif p := held_period(x, max_rows):
+            held[j] = (p, 0)
+    return held
+
+
+def interpolate_held(a: np.ndarray, periods: dict[int, float]) -> None:
+    """In place: every column j of ``a`` (n, k) in ``periods`` (its period in rows), written with
+    sample-and-hold, takes on each row the value linearly between the sample before and the
+    sample after it, rather than the last sample's: a sample starts where a new value does, and a
+    value kept longer than 1.5 periods was sampled again unchanged, so the ramp to the next value
+    spans its last period. Held, a value was up to a period late and every row a new measurement
+    of it: in the take-off's spool-up Ps30 held every 64 rows read up to 35 % low, misfit, was
+    left out and stayed out (the health held without it), in a probe fleet for the whole log in
+    19 of 48 logs. Rows not finite or :data:`_SPIKE` stay as they are and give no value."""
+    for j, p in periods.items():
+        x = a[:, j]
+        rows = np.flatnonzero(np.isfinite(x) & (x != _SPIKE))
+        v = x[rows]
+        k = np.concatenate([[0], np.flatnonzero(v[1:] != v[:-1]) + 1])   # the samples (into rows)
+        if k.size < 2:
+            continue
+        at, val = rows[k], v[k]
+        step = max(1, int(round(p)))
+        start = np.where(np.diff(at) <= 1.5 * p, at[:-1], np.maximum(at[:-1], at[1:] - step))
+        start[0] = max(at[0], at[1] - step)     # the log began with a sample already held
+        seg = np.searchsorted(at, rows, side="right") - 1
+        inner = seg < at.size - 1
+        r, s = rows[inner], seg[inner]
+        frac = np.clip((r - start[s]) / (at[s + 1] - start[s]), 0.0, 1.0)
+        x[r] = val[s] + frac * (val[s + 1] - val[s])
 
 
 def true_runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -401,7 +521,7 @@ class Estimator:
         self.misfit = dict.fromkeys(self.db.names["y"], 0)
         self.implausible = dict.fromkeys(self.input_channels, 0)
         self._evidence = {}      # channel or ("misfit", sensor) -> kept values (_checked)
-        self.low_rate = {}       # channel logged at a lower rate -> its step, s (_hold_low_rate)
+        self.low_rate = {}       # channel held between its samples -> their period, s (_find_held)
         self.air_data = 0        # samples whose scheduling and inlet pressure disagree (_check_air_data)
         self.trim_filled = 0     # samples interpolated from trims the build filled (FLAG_TRIM_FILLED)
         self._lag_sums = np.zeros(6)   # the inlet pressure's lag behind the air data (air_data_lag)
@@ -772,24 +892,34 @@ class Estimator:
                "a channel map)") if guess else "a failed or biased sensor, or a unit mistake?"
         return f"typically {have:.6g} {unit} against {want:.6g} predicted: {why}"
 
-    def _split(self, log: Log, rows=slice(None)):
+    def _split(self, log: Log, rows=slice(None), held=None):
         """The kernel's input arrays from a log's ``rows`` (a slice; checks presence and units of
         every channel; :meth:`absent_sensors` and the sensors failed for the log NaN; spikes of the inputs, scheduling channels and
         theta/delta set outside their plausible range, judged with the samples around the rows:
-        :func:`spikes`)."""
+        :func:`spikes`; held channels, ``held`` as from :meth:`_find_held` (None: found on
+        ``log``), their empty rows filled (:func:`_fill_low_rate`), then every row interpolated
+        between their samples (:func:`interpolate_held`), sensors, inputs and scheduling
+        channels alike)."""
         db, pm = self.db, self.pm
         units = self.channel_units
         absent = self.absent_sensors(log)
         a, b, _ = rows.indices(len(log))
-        wide = slice(max(0, a - SPIKE_REACH), min(len(log), b + SPIKE_REACH))
+        reach = self._reach
+        wide = slice(max(0, a - reach), min(len(log), b + reach))
         def take(names, r=wide):
             return log.require(names, [units.get(n, "") for n in names], absent, r)
         U, S, Y = take(db.names["u"]), take(pm.schedule_channels), take(db.names["y"])
         TD = take([pm.theta_channel, pm.delta_channel]) / [db.correction.T_std, db.correction.P_std] \
             if pm.theta_channel else np.ones((U.shape[0], 2))
         cols = np.hstack([U, S, TD])
-        self._hold_low_rate(log, [db.names["u"], pm.schedule_channels, [pm.theta_channel, pm.delta_channel]], cols)
-        self._hold_low_rate(log, [db.names["y"]], Y)
+        held = self._find_held(log) if held is None else held
+        self.low_rate.update({c: max(self.low_rate.get(c, 0.0), h[2]) for c, h in held.items()})
+        held_cols = self._held_in(held, [*db.names["u"], *pm.schedule_channels, pm.theta_channel, pm.delta_channel])
+        held_y = self._held_in(held, db.names["y"])
+        for a_, h in ((cols, held_cols), (Y, held_y)):
+            for j, (_, med) in h.items():
+                if med:                               # empty rows between samples: held first
+                    _fill_low_rate(a_, j, med)
         lim = self._limits_of(0, 2, 3, 4)             # U, S, TH, DE
         with np.errstate(over="ignore"):
             span = lim[1] - lim[0]                    # inf for a channel without a range
@@ -797,6 +927,8 @@ class Estimator:
         cols[spikes(cols, span, frozen=np.arange(cols.shape[1]) >= U.shape[1])] = _SPIKE
         cols[np.isinf(cols)] = _SPIKE          # implausible, as screen() counts and names them (not missing)
         Y[np.isinf(Y)] = _SPIKE
+        interpolate_held(cols, {j: p for j, (p, _) in held_cols.items()})
+        interpolate_held(Y, {j: p for j, (p, _) in held_y.items()})
         cols = cols[a - wide.start: b - wide.start]
         U, S = np.ascontiguousarray(cols[:, :U.shape[1]]), np.ascontiguousarray(cols[:, U.shape[1]:-2])
         TH, DE = (np.ascontiguousarray(cols[:, -2]), np.ascontiguousarray(cols[:, -1])) \
@@ -809,16 +941,38 @@ class Estimator:
             Y[(t >= t0) & (t <= t1)] = np.nan
         return U, Y, S, TH, DE
 
-    def _hold_low_rate(self, log: Log, groups, a) -> None:
-        """:func:`hold_low_rate` on ``a`` (columns: the channels of ``groups`` in turn, None for
-        none); the channels held are recorded in :attr:`low_rate` (name -> median step, s)."""
-        names = [c for g in groups for c in g]
+    @property
+    def _reach(self) -> int:
+        """Rows either side of a chunk that :meth:`_split` reads: the spike test's
+        (:data:`SPIKE_REACH`) and a held channel's, whose rows take values from the samples up to
+        two of its longest periods away (:func:`interpolate_held`, :func:`_fill_low_rate`)."""
+        return max(SPIKE_REACH, int(np.ceil(4 * LOW_RATE_GAP / self.db.dt)) + 2)
+
+    def _find_held(self, log: Log) -> dict[str, tuple[float, int, float]]:
+        """The channels the filter reads that ``log`` holds between their samples, judged on its
+        first :data:`HELD_ROWS` rows (:func:`held_channels`): logged at a lower rate (empty rows
+        between samples) or written with sample-and-hold (each sample repeated until the next);
+        channel -> (period in rows, median step between samples logged with empty rows between
+        them else 0, period in s)."""
         dt = sample_interval(log.time)
         if not np.isfinite(dt) or dt <= 0:
-            return
-        for j, med in hold_low_rate(a, int(LOW_RATE_GAP / dt)).items():
-            if names[j] is not None:
-                self.low_rate[names[j]] = max(self.low_rate.get(names[j], 0.0), round(med * dt, 6))
+            return {}
+        pm = self.pm
+        names = [c for c in dict.fromkeys([*self.db.names["u"], *pm.schedule_channels, *self.db.names["y"],
+                                           pm.theta_channel, pm.delta_channel]) if c in log.channels]
+        if not names:
+            return {}
+        n = min(len(log), HELD_ROWS)
+        # a period is at most LOW_RATE_GAP: 66 or 67 rows at 1 Hz on a 66.7 Hz grid
+        found = held_channels([np.asarray(log.channels[c][:n], dtype=np.float64) for c in names],
+                              np.ceil(LOW_RATE_GAP / dt - 1e-6))
+        return {names[j]: (p, med, float(f"{p * dt:.4g}")) for j, (p, med) in found.items()}
+
+    @staticmethod
+    def _held_in(held: dict, names) -> dict[int, tuple[float, int]]:
+        """Column -> (period in rows, median step if logged with empty rows) of the channels ``names`` (in
+        column order; None for none) that ``held`` (:meth:`_find_held`) names."""
+        return {j: held[c][:2] for j, c in enumerate(names) if c is not None and c in held}
 
     def run(self, log, reset: bool = True) -> Result:
         """Estimates for a whole log.
@@ -1198,16 +1352,23 @@ class Estimator:
         """(log, part): the log (an HDF5 flight log's header, read chunk by chunk; any other
         format or a log through a channel map: read whole) and ``part(a, b)``, the kernel's
         arrays (:meth:`_split`) and time of samples a..b."""
+        held = None      # the log's held channels (_find_held), found on its first rows at the first chunk
         if self.channel_map is None and log_path.lower().endswith((".h5", ".hdf5")):
             head = read_header(log_path)
-            def part(a, b):     # with the samples around the chunk, for its spikes (_split)
-                lo = max(0, a - SPIKE_REACH)
-                p = read_rows(head, lo, min(len(head), b + SPIKE_REACH))
-                return self._split(p, slice(a - lo, b - lo)), head.time[a:b]
+            def part(a, b):     # with the samples around the chunk, for its spikes and held channels (_split)
+                nonlocal held
+                if held is None:
+                    held = self._find_held(read_rows(head, 0, min(len(head), HELD_ROWS)))
+                lo = max(0, a - self._reach)
+                p = read_rows(head, lo, min(len(head), b + self._reach))
+                return self._split(p, slice(a - lo, b - lo), held), head.time[a:b]
         else:
             head = read_log(log_path, channel_map=self.channel_map)
             def part(a, b):
-                return self._split(head, slice(a, b)), head.time[a:b]
+                nonlocal held
+                if held is None:
+                    held = self._find_held(head)
+                return self._split(head, slice(a, b), held), head.time[a:b]
         return head, part
 
     def run_file(self, log_path, out_path, chunk: int = 1 << 16, outputs=None, every: int = 1,
