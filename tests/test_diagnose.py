@@ -720,3 +720,26 @@ def test_flights_are_ordered_by_real_time_then_flight_index():
     twice = daily + [rec("2026-01-02", 2, "E1/flight_2_v2.h5")]
     assert "E1/flight_2_v2.h5 and E1/flight_2.h5" in mixed_engines(twice)[0]
     assert [r.source for r in group_engines(twice)["E1"]][-2:] == ["E1/flight_2.h5", "E1/flight_2_v2.h5"]
+
+
+def test_a_trend_without_filter_health_says_which_sensors_were_absent():
+    """An engine whose logs lack a sensor the filter's health needs (the turbofan without P15:
+    health held on every flight) printed a table of 'nan' and nothing about why; now each missing
+    value is '-' and a note names the flights without health and the sensors absent from all of
+    them (channel c3 here; c1, absent on one flight only, is not named)."""
+    from pwl.fleet.trending import EngineTrend, health_notes
+    D, S = stepped(4, 8, [])
+    D[:, 3] = np.nan
+    D[2, 1] = np.nan
+    es = series(D, S)
+    es.h_hat[5] = [0.01, -0.02]                   # one flight with health: the other 7 have none
+    notes = health_notes(es)
+    assert len(notes) == 1 and notes[0].startswith("no health estimate on 7 of 8 flights") and "c3 not in" in notes[0]
+    assert "c1" not in notes[0]
+    es.h_hat[:] = 0.0
+    assert health_notes(es) == []
+    tr = EngineTrend("E", [f"f{k}" for k in range(8)], ["a", "b"], np.full((8, 2), np.nan), np.full(2, np.nan),
+                     np.full(2, np.nan), np.full(2, np.nan), diagnose_engine(series(D, S), np.eye(6) * 1e-6, DiagnosisConfig()),
+                     notes=notes)
+    text = tr.table()
+    assert "nan" not in text and notes[0] in text

@@ -108,6 +108,7 @@ class EngineTrend:
     slope_se: np.ndarray
     decisions: list[Decision]
     units: dict[str, str] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
 
     @property
     def latest(self) -> Decision:
@@ -125,10 +126,11 @@ class EngineTrend:
             d = self.decisions[i]
             verdict = f"{d.cls} {_kind(d)} since flight {d.onset}: {self.detail(d)}" \
                 if d.detected or d.kind in ("recovery", "cleared") else d.status
-            lines.append(f"{lab[:14]:<14}" + "".join(f"{100 * v:>8.2f}" for v in self.H[i]) + f"  {verdict}")
-        lines.append(f"{'level':<14}" + "".join(f"{100 * v:>8.2f}" for v in self.level))
-        lines.append(f"{'slope/flight':<14}" + "".join(f"{100 * v:>8.3f}" for v in self.slope))
-        lines.append(f"{'  +-':<14}" + "".join(f"{100 * v:>8.3f}" for v in self.slope_se))
+            lines.append(f"{lab[:14]:<14}" + _percents(self.H[i], 2) + f"  {verdict}")
+        lines.append(f"{'level':<14}" + _percents(self.level, 2))
+        lines.append(f"{'slope/flight':<14}" + _percents(self.slope, 3))
+        lines.append(f"{'  +-':<14}" + _percents(self.slope_se, 3))
+        lines += self.notes
         d = self.latest
         if d.detected:
             rate = d.kind in ("drift", "wear")
@@ -157,6 +159,27 @@ class EngineTrend:
                          f"+- {100 * r.magnitude_std:.2f} %; {self.detail(r)}; later changes measured from it"
                          + (f" (what it left of {', '.join(r.earlier.split())} still reported)" if r.earlier else ""))
         return "\n".join(lines)
+
+
+def _percents(v: np.ndarray, digits: int) -> str:
+    """Fractions v as percent columns of width 8, '-' where there is no value."""
+    return "".join(f"{100 * x:>8.{digits}f}" if np.isfinite(x) else f"{'-':>8}" for x in v)
+
+
+def health_notes(es) -> list[str]:
+    """Why flights of ``es`` (:class:`~pwl.fleet.diagnose.EngineSeries`) have no filter health:
+    the filter holds its health where a sensor it needs is absent (an engine without P15, whose
+    table was all NaN with nothing said), and the sensors absent on every such flight."""
+    none = ~np.all(np.isfinite(es.h_hat), axis=1)
+    if not none.any():
+        return []
+    channels = sorted({c.split("@")[0] for c in es.channels}, key=[c.split("@")[0] for c in es.channels].index)
+    absent = [c for c in channels if c not in es.input_names and
+              not np.isfinite(es.D[np.ix_(none, [j for j, k in enumerate(es.channels) if k.split("@")[0] == c])]).any()]
+    why = (f"the filter held its health where the sensors it needs were absent: {', '.join(absent)} "
+           f"not in these logs" if absent else "the filter's health was held or not settled in every steady window")
+    return [f"no health estimate on {int(none.sum())} of {none.size} flights ({why}); the diagnosis uses "
+            f"the snapshots' deviations, which do not need them"]
 
 
 def engine_trend(records: list[FlightRecord], db: GainDatabase,
@@ -190,7 +213,7 @@ def engine_trend(records: list[FlightRecord], db: GainDatabase,
     else:
         level, b, se = (H[ok][-1] if x.size else np.full(nh, np.nan)), np.full(nh, np.nan), np.full(nh, np.nan)
     return EngineTrend(es.engine, [f.label for f in es.flights], es.h_names, H, level, b, se, dec,
-                       detail_units(db))
+                       detail_units(db), health_notes(es))
 
 
 def plot_trend(tr: EngineTrend, path, truth: np.ndarray | None = None) -> None:
