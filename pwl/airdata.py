@@ -105,6 +105,53 @@ def disagree(alt_m, mach, p2, tolerance: float = AIR_DATA_TOLERANCE):
     return _disagree(alt_m, mach, p2, tolerance)
 
 
+def pressure_altitude(p_static):
+    """The ICAO standard atmosphere's pressure altitude (m) of static pressure ``p_static`` (Pa;
+    the inverse of :func:`isa_pressure`, troposphere and lower stratosphere)."""
+    p = np.asarray(p_static, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        low = _T_SL / _LAPSE * (1.0 - (p / _P_SL) ** (_LAPSE * _R / _G))
+        high = _H_TROP + _R * _T_TROP / _G * np.log(_P_TROP / p)
+    return np.where(p >= _P_TROP, low, high)
+
+
+#: altitude units a log may be in while declared (or taken) in another: the factor the logged
+#: altitude is then off by, what it is and the unit it is in (a recorder's flight level is in
+#: hundreds of feet: no unit of pwl's)
+_ALTITUDE_SLIPS = ((1.0 / 0.3048, "feet read as metres", "ft"), (0.3048, "metres read as feet", "m"),
+                   (1e-3, "kilometres read as metres", "km"), (1e3, "metres read as kilometres", "m"),
+                   (0.01, "a flight level (hundreds of feet) read as feet", ""),
+                   (0.01 / 0.3048, "a flight level (hundreds of feet) read as metres", ""))
+
+
+def altitude_slip(alt_m, mach, p2) -> tuple[str, str]:
+    """(what an altitude that disagrees with the inlet pressure looks like, the unit it is in), or
+    ('', '') if nothing: how the
+    logged altitude ``alt_m`` (m, as converted) scales with the pressure altitude h that ``p2``
+    (Pa) and ``mach`` give (full ram recovery): the slope of a straight line through them where h
+    spans 500 m or more (its intercept takes the inlet's recovery and a static-pressure error up:
+    a 0.5 % low P2 is 40 m at sea level), else their median ratio above 1 km; within 5 % of a unit
+    slip of :data:`_ALTITUDE_SLIPS` (an altitude in feet declared in metres read 3.28 times the
+    true one: 'a wrong, frozen or missing altitude or Mach?' said nothing of which)."""
+    alt_m, mach, p2 = (np.asarray(v, dtype=np.float64) for v in (alt_m, mach, p2))
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        ram = (1.0 + 0.5 * (_GAMMA - 1.0) * mach * mach) ** (_GAMMA / (_GAMMA - 1.0))
+        h = pressure_altitude(p2 / ram)
+    ok = np.isfinite(alt_m) & np.isfinite(h)
+    alt_m, h = alt_m[ok], h[ok]
+    if h.size >= 5 and np.ptp(h) >= 500.0:
+        ratio = float(np.polyfit(h, alt_m, 1)[0])
+    elif np.count_nonzero(h > 1000.0) >= 5:
+        ratio = float(np.median(alt_m[h > 1000.0] / h[h > 1000.0]))
+    else:
+        return "", ""
+    for k, what, unit in _ALTITUDE_SLIPS:
+        if abs(ratio / k - 1.0) < 0.05:
+            return (f"the altitude reads {ratio:.3g} times the pressure altitude the inlet pressure and "
+                    f"Mach give: {what}?", unit)
+    return "", ""
+
+
 def lag_sums(alt_m, mach, p2, dt: float, use=None, base: float = LAG_BASE) -> np.ndarray:
     """The sums (6,) over one stretch of samples from which :func:`lag` fits how late ``p2`` is
     against ``alt_m`` and ``mach`` (arrays (n,) in m, -, any pressure unit; ``dt`` s between

@@ -11,7 +11,7 @@ import warnings
 
 import numpy as np
 
-from .airdata import LAG_SIGMAS, LAG_WARN, air_data_channels, disagree, inlet_pressure, lag, lag_sums
+from .airdata import LAG_SIGMAS, LAG_WARN, air_data_channels, altitude_slip, disagree, inlet_pressure, lag, lag_sums
 from .database import GainDatabase
 from .grid import Axis, Grid
 from .h5io import atomic_h5
@@ -864,11 +864,14 @@ class Estimator:
             kept = np.concatenate(self._evidence["air_data"])
             _, alt, mach, p2 = kept[np.argsort(kept[:, 0])[kept.shape[0] // 2]]      # the median disagreement
             sa, sm = (self.pm.schedule_channels[j] for j in self._air[:2])
+            slip, unit = altitude_slip(kept[:, 1], kept[:, 2], kept[:, 3])
+            fix = f"declare its unit: '{sa}[{unit}]' in the header or a units row" if unit else "scale it in a channel map"
+            why = (f"{slip} ({fix})" if slip else
+                   "a wrong, frozen or missing altitude or Mach (logged as 0?), or a wrong inlet pressure?")
             warnings.warn(f"{path}: {sa!r}, {sm!r} and {self.pm.delta_channel!r} disagree on {self.air_data} of {n} "
                           f"samples: typically {p2 / 1e3:.4g} kPa inlet pressure where pressure altitude {alt:.5g} m "
                           f"and Mach {mach:.3g} give {inlet_pressure(alt, mach) / 1e3:.4g} kPa (standard "
-                          f"atmosphere): a wrong, frozen or missing altitude or Mach (logged as 0?), or a "
-                          f"wrong inlet pressure? Those samples are not trusted", PwlWarning, stacklevel=4)
+                          f"atmosphere): {why} Those samples are not trusted", PwlWarning, stacklevel=4)
         tau, se = self.air_data_lag       # meaningless where the air data disagree (warned above)
         if abs(tau) >= LAG_WARN and abs(tau) >= LAG_SIGMAS * se and self.air_data < max(n, 1) / 100:
             sa, sm = (self.pm.schedule_channels[j] for j in self._air[:2])

@@ -348,3 +348,30 @@ def test_many_sensors_failing_at_once_point_at_an_input_or_the_database():
         Estimator(DB).run(with_channels(log, P50=log.channels["P15"], P15=log.channels["P50"]))
     said = " ".join(str(w.message) for w in got)
     assert "Estimated again without them" in said and "at once" not in said
+
+
+@pytest.mark.parametrize("factor,unit,says", [(1 / 0.3048, "ft", "feet read as metres"),
+                                              (1e-3, "km", "kilometres read as metres"),
+                                              (1.0, None, None)])
+def test_an_altitude_in_the_wrong_unit_is_named_as_such(factor, unit, says):
+    """An altitude logged in feet (or km) but declared in metres is plausible on most samples and
+    disagrees with the inlet pressure; the warning said 'a wrong, frozen or missing altitude or
+    Mach?' and not which. Now it gives the scale of the logged altitude against the pressure
+    altitude P2 and Mach give (pwl.airdata.altitude_slip; reference: the plant model's ISA) and the
+    unit to declare; a correct altitude, or one merely frozen, gets no such guess."""
+    from pwl.airdata import altitude_slip, pressure_altitude
+    for h in (0.0, 3000.0, 10999.0, 13000.0):
+        assert pressure_altitude(isa(h, 0.0)[1]) == pytest.approx(h, abs=0.01)      # 1e-6 in pressure
+    log = degraded()
+    alt = log.channels["alt"] * factor
+    if unit is None:
+        k = slice(int(150 / 0.015), int(270 / 0.015))
+        alt[k] = alt[k.start]                       # frozen in the climb: disagrees, no unit slip
+    with pytest.warns(PwlWarning, match=r"disagree on") as got:
+        Estimator(DB).run(with_channels(log, alt=alt))
+    text = " ".join(str(w.message) for w in got if "disagree on" in str(w.message))
+    if unit:
+        assert says in text and f"'alt[{unit}]'" in text, text
+    else:
+        assert "times the pressure altitude" not in text and "a wrong, frozen or missing altitude" in text
+    assert altitude_slip(log.channels["alt"], log.channels["Mach"], log.channels["P2"]) == ("", "")
