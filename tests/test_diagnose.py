@@ -743,3 +743,16 @@ def test_a_trend_without_filter_health_says_which_sensors_were_absent():
                      notes=notes)
     text = tr.table()
     assert "nan" not in text and notes[0] in text
+
+
+def test_a_step_on_a_flight_lacking_a_channel_has_its_onset_there_on_every_later_row():
+    """Channel c4 missing on every other flight from flight 4 (a sensor with a loose connector),
+    an hpt loss from flight 6, which lacks c4: flight 6's row, decided on its own channels, finds
+    the loss from 6; flight 7's test needs c4 and so leaves flight 6 out, and put the onset at 7,
+    on every row with c4 (7, 9, 11, ...). Now every row from 6 says onset 6."""
+    D, S = stepped(11, 16, [("hpt", [-0.02, 0.01], 6)])
+    D[4::2, 4] = np.nan
+    rows = diagnose_engine(series(D, S), np.eye(6) * 1e-6, DiagnosisConfig(eps=0.0, curvature=0.0))
+    assert not any(r.detected for r in rows[:6])
+    for r in rows[6:]:
+        assert r.detected and r.cls == "hpt" and r.kind == "step" and r.onset == 6, r

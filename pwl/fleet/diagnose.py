@@ -1429,6 +1429,13 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
                                                                       & (number[rowsok] < dec.onset))
                                 for j in changed_in_flight):
             dec.onset = int(max(number[j] for j in changed_in_flight if number[j] < dec.onset))   # began in it
+        j = int(np.searchsorted(number, dec.onset)) - 1
+        if (dec.detected and dec.kind == "step" and j >= first and j not in rowsok and j not in changed_in_flight
+                and rows[j].detected and (rows[j].cls, rows[j].kind, rows[j].onset) == (dec.cls, "step", number[j])):
+            # the flight before, left out for lacking a channel this test uses, found this step
+            # beginning there on its own channels: it began there (a T48 missing on alternate
+            # flights put an LPT loss's onset on every other row a flight late)
+            dec.onset = int(number[j])
         # a finding on two flights in a row is confirmed: later flights look for a new change
         # after it (a second fault, a repair) measured from it, and name it in ``earlier``
         finding[len(rows)] = _finding(dec)
