@@ -776,3 +776,42 @@ def test_a_flight_off_for_that_flight_only_is_left_out_and_a_later_fault_found_a
     for r in rows[10:]:
         assert r.detected and r.cls == "hpt" and r.kind == "step" and r.onset == 10, r
         assert r.magnitude == pytest.approx(-0.02, abs=0.002)
+
+
+def test_a_hot_or_cold_day_is_taken_out_of_the_deviations_with_the_fleets_slope():
+    """The trims are the standard day's; a hot or cold day moves a snapshot at matched corrected
+    speed (the turbofan: Wf +0.2 %, T48 -0.1 % per 10 K), most of those channels' flight-to-flight
+    scatter, and an engine flown through a winter (-35 K) and then a summer (+30 K) read a fault
+    at the change. The fleet's slope per channel (ambient_slopes: consecutive flights'
+    differences, faults' steps left out as outliers) is the one drawn to 3 standard errors of
+    the fit, a channel without one is 0, and with the deviations brought to the standard day
+    the season is no alarm while an hpt loss on another engine is still found at its onset."""
+    from pwl.fleet.diagnose import ambient_corrected, ambient_slopes, noise_covariance
+    rng = np.random.default_rng(12)
+    S = synthetic_signatures()
+    slope = np.array([2e-4, -1e-4, 0.0, 5e-5, 0.0, 0.0])          # per K
+    fleet = []
+    for e in range(10):
+        n = 16
+        dT = rng.uniform(-10, 20, n)
+        if e == 0:
+            dT = np.where(np.arange(n) < 8, -35.0, 30.0) + rng.normal(0, 2, n)
+        D = rng.normal(0, 1e-3, (n, 6)) + rng.normal(0, 5e-3, 6) + np.outer(dT, slope)
+        if e == 1:
+            D[9:] += S[:, 2:4] @ [-0.02, 0.01]
+        es = series(D, S, engine=f"E{e}")
+        es.dT = np.repeat(dT[:, None], 6, axis=1)
+        fleet.append(es)
+    got = ambient_slopes(fleet)
+    dd = np.vstack([np.diff(es.dT, axis=0) for es in fleet])
+    se = 1e-3 * np.sqrt(2) / np.sqrt(np.sum(dd[:, 0] ** 2))
+    np.testing.assert_allclose(got, slope, atol=3 * se)
+    assert got[2] == 0.0 and got[4] == 0.0 and got[5] == 0.0
+    fixed = ambient_corrected(fleet, got)
+    Sigma = noise_covariance(fixed, DiagnosisConfig().floor)
+    # the scatter is the drawn 1e-3 again, not the ambient's (about 1.9e-3 on days -10..+20 K)
+    assert np.sqrt(Sigma[0, 0]) == pytest.approx(1e-3, rel=0.15)
+    assert np.sqrt(noise_covariance(fleet, DiagnosisConfig().floor)[0, 0]) > 1.5e-3
+    rows = {es.engine: diagnose_engine(es, Sigma, DiagnosisConfig()) for es in fixed}
+    assert all(r.detected and r.cls == "hpt" and r.onset == 9 for r in rows["E1"][9:])
+    assert not any(r.detected for e, rs in rows.items() if e != "E1" for r in rs)
