@@ -69,7 +69,7 @@ import os
 import re
 import warnings
 from copy import copy
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import lru_cache, partial
 from typing import NamedTuple
 
@@ -444,7 +444,6 @@ def ambient_slopes(series: list[EngineSeries]) -> np.ndarray:
 def ambient_corrected(series: list[EngineSeries], slopes: np.ndarray) -> list[EngineSeries]:
     """The series with each window's deviations brought to the standard day (``slopes``,
     :func:`ambient_slopes`; a window without an ambient is left as it is)."""
-    from dataclasses import replace
     return [es if es.dT is None else replace(es, D=es.D - slopes * np.nan_to_num(es.dT)) for es in series]
 
 
