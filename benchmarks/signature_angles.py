@@ -30,9 +30,7 @@ from pwl.fleet.signatures import Signatures
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 # flight-to-flight 1-sigma scatter of the deviations (relative) per regime, as printed by
-# `pwl fleet diagnose` on the seed-0 benchmark fleet before the deviations were brought to the
-# standard day (2026-11-26, session 12: now 0.020-0.035 % on every channel of both regimes); the
-# angles of docs/diagnostics.md section 7 are with these
+# `pwl fleet diagnose` on the seed-0 benchmark fleet
 SCATTER = {"cruise": {"Nc": 2.1e-4, "T24": 2.7e-4, "Ps30": 3.0e-4, "T30": 2.7e-4, "T48": 1.35e-3,
                       "P50": 2.3e-4, "P15": 2.3e-4, "Wf": 1.9e-3},
            "idle": {"Nc": 2.0e-4, "T24": 2.1e-4, "Ps30": 8.6e-4, "T30": 2.1e-4, "T48": 1.22e-3,

@@ -105,12 +105,6 @@ def disagree(alt_m, mach, p2, tolerance: float = AIR_DATA_TOLERANCE):
     return _disagree(alt_m, mach, p2, tolerance)
 
 
-def isa_temperature(alt_m):
-    """The ICAO standard atmosphere's temperature (K) at pressure altitude ``alt_m`` (m; up to
-    20 km)."""
-    return np.where(np.asarray(alt_m) <= _H_TROP, _T_SL - _LAPSE * np.asarray(alt_m), _T_TROP)
-
-
 def pressure_altitude(p_static):
     """The ICAO standard atmosphere's pressure altitude (m) of static pressure ``p_static`` (Pa;
     the inverse of :func:`isa_pressure`, troposphere and lower stratosphere)."""

@@ -69,7 +69,7 @@ import os
 import re
 import warnings
 from copy import copy
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from functools import lru_cache, partial
 from typing import NamedTuple
 
@@ -373,7 +373,6 @@ class EngineSeries:
     h_hat: np.ndarray
     h_names: list[str]
     input_names: list[str] = field(default_factory=list)
-    dT: np.ndarray | None = None     # (n, m R) each window's ambient off the standard day, K
 
 
 def engine_series(flights: list[FlightRecord], sig: Signatures, n_regimes: int) -> EngineSeries:
@@ -384,7 +383,6 @@ def engine_series(flights: list[FlightRecord], sig: Signatures, n_regimes: int) 
     D, SE = np.full((n, m * R), np.nan), np.full((n, m * R), np.nan)
     S, level = np.full((n, m * R, ncol), np.nan), np.full((n, ncol), np.nan)
     H = np.full((n, sig.db.n("h")), np.nan)
-    dT = np.full((n, m * R), np.nan)
     for i, r in enumerate(flights):
         s = r.snapshot
         longest = -1
@@ -395,7 +393,6 @@ def engine_series(flights: list[FlightRecord], sig: Signatures, n_regimes: int) 
                 raise DiagnosisError(f"{r.source}: snapshot lacks channel {e} the database needs") from None
             cols = slice(reg * m, (reg + 1) * m)
             D[i, cols], SE[i, cols], S[i, cols] = dev.d, dev.se, dev.S
-            dT[i, cols] = sig.ambient(dict(zip(s.channels, s.mean[w])))
             if longest < 0 or s.samples[w] > s.samples[longest]:
                 longest = w
                 level[i] = dev.level
@@ -403,48 +400,7 @@ def engine_series(flights: list[FlightRecord], sig: Signatures, n_regimes: int) 
             H[i] = s.outputs["h_hat"][longest]
     names = [f"{c}@{reg}" for reg in range(R) for c in sig.channels]
     return EngineSeries(flights[0].engine if flights else "", flights, names, list(sig.columns),
-                        D, SE, S, level, H, list(sig.db.names["h"]), list(sig.db.names["u"]), dT)
-
-
-#: an ambient slope (:func:`ambient_slopes`) is used when it is this many standard errors from 0,
-#: from at least AMBIENT_PAIRS flight-to-flight differences whose ambient spreads AMBIENT_SPREAD K
-AMBIENT_T, AMBIENT_PAIRS, AMBIENT_SPREAD = 5.0, 20, 3.0
-
-
-def ambient_slopes(series: list[EngineSeries]) -> np.ndarray:
-    """Each deviation channel's change per kelvin of the day's ambient off the standard
-    atmosphere (m R,), 0 where not significant: the trims are the standard day's, and a hot or cold
-    day moves a snapshot at matched corrected speed (the turbofan: Wf +0.17-0.20 %, T48 -0.08 to
-    -0.10 %, Ps30 +0.03-0.05 % per 10 K; 0.6-0.99 of those channels' flight-to-flight scatter in
-    a fleet flown on days -10..+20 K, and an engine flown through a winter and a summer read a
-    fault). Fitted through the origin on consecutive flights' differences within each engine (its
-    level and faults drop out), outliers beyond 4 robust sigmas (a fault's step) left out."""
-    dd = [np.diff(es.D, axis=0) for es in series if es.dT is not None and es.D.shape[0] > 1]
-    dt = [np.diff(es.dT, axis=0) for es in series if es.dT is not None and es.D.shape[0] > 1]
-    out = np.zeros(series[0].D.shape[1]) if series else np.zeros(0)
-    if not dd:
-        return out
-    dD, dT = np.vstack(dd), np.vstack(dt)
-    for j in range(dD.shape[1]):
-        ok = np.isfinite(dD[:, j]) & np.isfinite(dT[:, j])
-        x, y = dT[ok, j], dD[ok, j]
-        if x.size < AMBIENT_PAIRS or np.std(x) < AMBIENT_SPREAD:
-            continue
-        keep = np.ones(x.size, dtype=bool)
-        for _ in range(3):
-            b = float(x[keep] @ y[keep] / (x[keep] @ x[keep]))
-            r = y - b * x
-            keep = np.abs(r) <= 4.0 * 1.4826 * np.median(np.abs(r)) + 1e-15
-        se = np.sqrt(np.sum(r[keep] ** 2) / max(keep.sum() - 1, 1) / (x[keep] @ x[keep]))
-        if abs(b) >= AMBIENT_T * se:
-            out[j] = b
-    return out
-
-
-def ambient_corrected(series: list[EngineSeries], slopes: np.ndarray) -> list[EngineSeries]:
-    """The series with each window's deviations brought to the standard day (``slopes``,
-    :func:`ambient_slopes`; a window without an ambient is left as it is)."""
-    return [es if es.dT is None else replace(es, D=es.D - slopes * np.nan_to_num(es.dT)) for es in series]
+                        D, SE, S, level, H, list(sig.db.names["h"]), list(sig.db.names["u"]))
 
 
 def noise_covariance(series: list[EngineSeries], floor: float) -> np.ndarray:
@@ -1851,7 +1807,6 @@ def diagnose_fleet(records: list[FlightRecord], db: GainDatabase,
     judged against the fleet's scatter, normal wear and normal baseline level."""
     sig, centers = prepare(records, db)
     series = [engine_series(v, sig, len(centers)) for v in group_engines(records).values()]
-    series = ambient_corrected(series, ambient_slopes(series))
     Sigma = noise_covariance(series, cfg.floor)
     from .trending import detail_units
     wear, level = fleet_norms(series, Sigma, cfg, detail_units(db))

@@ -26,11 +26,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..airdata import air_data_channels, isa_temperature
 from ..database import GainDatabase
 from ..interp import interpolate
 from ..errors import PwlError
-from ..units import UnitError, converter
 
 
 class DiagnosisError(PwlError, ValueError):
@@ -75,32 +73,6 @@ class Signatures:
         self.columns = list(names["h"]) + [f"sensor:{c}" for c in list(names["y"]) + list(names["u"])]
         self.t_axes = [names["p"].index(a) for a in db.trim_grid.names]
         self.d_axes = [names["p"].index(a) for a in db.dyn_grid.names]
-        self._ambient = self._ambient_channels()
-
-    def _ambient_channels(self):
-        """(altitude channel, its scale to m, Mach channel, inlet temperature channel, its scale
-        and offset to K) for :meth:`ambient`, or None without them."""
-        db, c = self.db, self.db.correction
-        units = {ch: u for ch, (u, _, _) in (db.log_channels or {}).items()}
-        sched = [ch for ch, _, _ in db.schedule]
-        air = air_data_channels(sched, units, c.delta_channel) if c is not None else None
-        if air is None:
-            return None
-        try:
-            kt, ot = converter(units.get(c.theta_channel, ""), "K")
-        except UnitError:
-            return None
-        return sched[air[0]], air[2], sched[air[1]], c.theta_channel, kt, ot
-
-    def ambient(self, mean: dict) -> float:
-        """A snapshot's ambient temperature off the standard atmosphere's at its pressure
-        altitude (K; NaN without altitude, Mach and inlet temperature channels): the inlet total
-        temperature less the ram rise, ``mean`` raw channel -> value."""
-        if self._ambient is None:
-            return float("nan")
-        ca, ka, cm, ct, kt, ot = self._ambient
-        mach = mean[cm]
-        return float((mean[ct] * kt + ot) / (1.0 + 0.2 * mach * mach) - isa_temperature(mean[ca] * ka))
 
     def theta_delta(self, mean: dict) -> tuple[float, float]:
         c = self.db.correction

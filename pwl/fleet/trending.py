@@ -22,8 +22,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..database import GainDatabase
-from .diagnose import (DiagnosisConfig, Decision, FlightRecord, ambient_corrected, ambient_slopes, diagnose_engine,
-                       engine_series, fleet_norms, group_engines, noise_covariance, prepare, recoveries)
+from .diagnose import (DiagnosisConfig, Decision, FlightRecord, diagnose_engine, engine_series, fleet_norms,
+                       group_engines, noise_covariance, prepare, recoveries)
 
 
 @dataclass
@@ -198,12 +198,9 @@ def engine_trend(records: list[FlightRecord], db: GainDatabase,
     wear = level = None
     if others:
         series = [es] + [engine_series(v, sig, len(centers)) for v in group_engines(others).values()]
-        series = ambient_corrected(series, ambient_slopes(series))
-        es = series[0]
         Sigma = noise_covariance(series, cfg.floor)
         wear, level = fleet_norms(series, Sigma, cfg, detail_units(db))
     else:
-        es = ambient_corrected([es], ambient_slopes([es]))[0]
         Sigma = noise_covariance([es], cfg.floor)
     dec = diagnose_engine(es, Sigma, cfg, wear, level)
     H = es.h_hat
