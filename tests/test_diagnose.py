@@ -776,3 +776,21 @@ def test_a_flight_off_for_that_flight_only_is_left_out_and_a_later_fault_found_a
     for r in rows[10:]:
         assert r.detected and r.cls == "hpt" and r.kind == "step" and r.onset == 10, r
         assert r.magnitude == pytest.approx(-0.02, abs=0.002)
+
+
+def test_a_declared_new_baseline_is_not_a_fault_and_a_later_fault_is_found_from_it():
+    """An engine moved to another aircraft at flight 8 (another bleed and load: a lasting change of
+    its deviations that looks like a fuel-meter bias or a component loss), then a fan loss at 13.
+    Undeclared, every flight from 8 alarms (an hpt loss of 0.6 %); with new_baselines=(8,) (pwl
+    fleet diagnose --new-baseline ESN:8) flights 8-10 are the new baseline, 11-12 are 'ok' and a
+    fan loss at 13 is found there with its size."""
+    D, S = stepped(17, 18, [("hpt", [-0.006, 0.0], 8), ("fan", [-0.02, -0.02], 13)])
+    cfg = DiagnosisConfig(eps=0.0, curvature=0.0)
+    before = diagnose_engine(series(D, S), np.eye(6) * 1e-6, cfg)
+    assert all(r.detected and r.cls == "hpt" for r in before[8:13])
+    rows = diagnose_engine(series(D, S), np.eye(6) * 1e-6, cfg, new_baselines=(8,))
+    assert [r.status for r in rows[8:11]] == ["baseline"] * 3
+    assert not any(r.detected for r in rows[:13])
+    for r in rows[13:]:
+        assert r.detected and r.cls == "fan" and r.onset == 13, r
+        assert r.magnitude == pytest.approx(-0.02, abs=0.004)      # a five-flight baseline

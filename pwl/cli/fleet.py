@@ -44,6 +44,10 @@ def add_arguments(p):
     d.add_argument("--no-pairs", action="store_true",
                    help="do not test changes of two causes: two components, a component and a sensor "
                         "(default: tested)")
+    d.add_argument("--new-baseline", metavar="ENGINE:FLIGHT", action="append", default=[],
+                   help="the engine starts a new baseline at that flight number (a shop visit, a module "
+                        "change, moved to another aircraft): what changed there is not a fault; repeat "
+                        "for more (default: none)")
     d.set_defaults(_step=run_diagnose)
 
     c = sub.add_parser("score", help="score a diagnosis CSV against a fleet's truth.csv",
@@ -145,8 +149,24 @@ def run_diagnose(args) -> int:
         cfg = replace(cfg, kappa=args.kappa)
     if args.no_pairs:
         cfg = replace(cfg, pairs=False)
+    baselines: dict = {}
+    for item in args.new_baseline:
+        engine, _, flight = item.rpartition(":")
+        try:
+            baselines.setdefault(engine, []).append(int(flight))
+        except ValueError:
+            engine = ""
+        if not engine:
+            print(f"pwl fleet diagnose: --new-baseline {item!r}: expected ENGINE:FLIGHT (a flight number)",
+                  file=sys.stderr)
+            return 2
+    unknown = sorted(set(baselines) - {r.engine for r in records})
+    if unknown:
+        print(f"pwl fleet diagnose: --new-baseline names engines the results do not have: {', '.join(unknown)}",
+              file=sys.stderr)
+        return 2
     db = GainDatabase.open(db_path)
-    rows, Sigma, channels, centers, wear = diagnose_fleet(records, db, cfg)
+    rows, Sigma, channels, centers, wear = diagnose_fleet(records, db, cfg, baselines)
     write_diagnosis(rows, args.output)
     engines = sorted({r.engine for r in rows})
     latest = {r.engine: r for r in rows}            # rows are in time order per engine

@@ -1344,7 +1344,8 @@ def _excursion(D: np.ndarray, Wt: np.ndarray, S: np.ndarray, bank: list[Hypothes
 
 
 def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = DiagnosisConfig(),
-                    wear: FleetNorm | None = None, level: FleetNorm | None = None) -> list[Decision]:
+                    wear: FleetNorm | None = None, level: FleetNorm | None = None,
+                    new_baselines: tuple = ()) -> list[Decision]:
     """Causal diagnosis of one engine: one :class:`Decision` per flight, using flights 0..k.
     ``wear``: the fleet's normal wear (:func:`wear_reference`); without it, wear is reported
     when faster than ``cfg.min_rate``. Its ``common`` fleet-wide changes (at one flight or
@@ -1357,7 +1358,13 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
     confirmed: later rows name it in ``earlier`` while a later fault is reported, and steps and
     drifts are nuisances of the tests for a later change. A recovery (every efficiency up) that
     leaves part of a fault found before it is not a new baseline: after its first flight the
-    rows report what is left (:func:`_remaining`)."""
+    rows report what is left (:func:`_remaining`).
+
+    ``new_baselines``: flight numbers from which the engine starts a new baseline, declared by the
+    user (a shop visit, a module change, the engine moved to another aircraft with another bleed
+    and load): what changed there is not a fault, and the flights before it are not compared with
+    the flights after (an engine moved to another aircraft alarmed on every later flight, as a
+    fuel-meter bias or an HPT loss of 0.65 %)."""
     n, m = es.D.shape
     bank_all = hypotheses(es.columns, cfg.pairs)
     rows = []
@@ -1378,6 +1385,8 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
     for k in range(n):
         r = es.flights[k]
         dec = Decision(es.engine, int(number[k]), r.label, r.source, "ok")
+        if any(number[k] >= b > (number[k - 1] if k else -np.inf) for b in new_baselines):
+            first, undo = k, None               # declared: a new baseline from this flight
         if not present[k].any():
             dec.status = "no steady snapshot"
             rows.append(dec)
@@ -1801,10 +1810,12 @@ def prepare(records: list[FlightRecord], db: GainDatabase) -> tuple[Signatures, 
 
 
 def diagnose_fleet(records: list[FlightRecord], db: GainDatabase,
-                   cfg: DiagnosisConfig = DiagnosisConfig()) -> tuple:
+                   cfg: DiagnosisConfig = DiagnosisConfig(), new_baselines: dict | None = None) -> tuple:
     """Every engine of ``records``; returns (decisions, Sigma, deviation channel names, regime
     centres (R, np), the fleet's normal wear (:class:`FleetNorm`, or None)). Each engine is
-    judged against the fleet's scatter, normal wear and normal baseline level."""
+    judged against the fleet's scatter, normal wear and normal baseline level.
+    ``new_baselines``: engine -> flight numbers where it starts a new baseline
+    (:func:`diagnose_engine`)."""
     sig, centers = prepare(records, db)
     series = [engine_series(v, sig, len(centers)) for v in group_engines(records).values()]
     Sigma = noise_covariance(series, cfg.floor)
@@ -1812,7 +1823,7 @@ def diagnose_fleet(records: list[FlightRecord], db: GainDatabase,
     wear, level = fleet_norms(series, Sigma, cfg, detail_units(db))
     rows = []
     for es in series:
-        rows += diagnose_engine(es, Sigma, cfg, wear, level)
+        rows += diagnose_engine(es, Sigma, cfg, wear, level, tuple((new_baselines or {}).get(es.engine, ())))
     return rows, Sigma, series[0].channels, centers, wear
 
 
