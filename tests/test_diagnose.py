@@ -794,3 +794,19 @@ def test_a_declared_new_baseline_is_not_a_fault_and_a_later_fault_is_found_from_
     for r in rows[13:]:
         assert r.detected and r.cls == "fan" and r.onset == 13, r
         assert r.magnitude == pytest.approx(-0.02, abs=0.004)      # a five-flight baseline
+
+
+def test_new_baseline_options_are_read_and_wrong_ones_named():
+    """--new-baseline ENGINE:FLIGHT (pwl fleet diagnose, pwl trend): engine -> flight numbers; an
+    item without a flight number, or an engine the results do not have, is a usage error naming it."""
+    from pwl.cli.fleet import new_baselines
+    from pwl.errors import UsageError
+    recs = [FlightRecord(e, ("", 0, []), "f", "f", None) for e in ("ESN004", "ESN005")]
+    assert new_baselines(["ESN004:8", "ESN005:3", "ESN004:12"], recs) == {"ESN004": [8, 12], "ESN005": [3]}
+    assert new_baselines([], recs) == {}
+    with pytest.raises(UsageError, match="'ESN004': expected ENGINE:FLIGHT"):
+        new_baselines(["ESN004"], recs)
+    with pytest.raises(UsageError, match="'ESN004:x'"):
+        new_baselines(["ESN004:x"], recs)
+    with pytest.raises(UsageError, match="do not have: ESN009"):
+        new_baselines(["ESN009:2"], recs)

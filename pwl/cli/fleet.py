@@ -44,10 +44,7 @@ def add_arguments(p):
     d.add_argument("--no-pairs", action="store_true",
                    help="do not test changes of two causes: two components, a component and a sensor "
                         "(default: tested)")
-    d.add_argument("--new-baseline", metavar="ENGINE:FLIGHT", action="append", default=[],
-                   help="the engine starts a new baseline at that flight number (a shop visit, a module "
-                        "change, moved to another aircraft): what changed there is not a fault; repeat "
-                        "for more (default: none)")
+    d.add_argument("--new-baseline", metavar="ENGINE:FLIGHT", action="append", default=[], help=NEW_BASELINE_HELP)
     d.set_defaults(_step=run_diagnose)
 
     c = sub.add_parser("score", help="score a diagnosis CSV against a fleet's truth.csv",
@@ -114,6 +111,31 @@ def database_of(records, given=None) -> str:
     return dbs[0]
 
 
+NEW_BASELINE_HELP = ("the engine starts a new baseline at that flight number (a shop visit, a module change, "
+                     "moved to another aircraft): what changed there is not a fault; repeat for more "
+                     "(default: none)")
+
+
+def new_baselines(items: list[str], records) -> dict[str, list[int]]:
+    """engine -> flight numbers of ``--new-baseline ENGINE:FLIGHT`` items (a UsageError naming an
+    item that is not that, or an engine the results do not have)."""
+    from ..errors import UsageError
+    out: dict[str, list[int]] = {}
+    for item in items:
+        engine, _, flight = item.rpartition(":")
+        try:
+            number = int(flight)
+        except ValueError:
+            engine = ""
+        if not engine:
+            raise UsageError(f"--new-baseline {item!r}: expected ENGINE:FLIGHT (a flight number)")
+        out.setdefault(engine, []).append(number)
+    unknown = sorted(set(out) - {r.engine for r in records})
+    if unknown:
+        raise UsageError(f"--new-baseline names engines the results do not have: {', '.join(unknown)}")
+    return out
+
+
 def run_diagnose(args) -> int:
     from dataclasses import replace
 
@@ -149,22 +171,7 @@ def run_diagnose(args) -> int:
         cfg = replace(cfg, kappa=args.kappa)
     if args.no_pairs:
         cfg = replace(cfg, pairs=False)
-    baselines: dict = {}
-    for item in args.new_baseline:
-        engine, _, flight = item.rpartition(":")
-        try:
-            baselines.setdefault(engine, []).append(int(flight))
-        except ValueError:
-            engine = ""
-        if not engine:
-            print(f"pwl fleet diagnose: --new-baseline {item!r}: expected ENGINE:FLIGHT (a flight number)",
-                  file=sys.stderr)
-            return 2
-    unknown = sorted(set(baselines) - {r.engine for r in records})
-    if unknown:
-        print(f"pwl fleet diagnose: --new-baseline names engines the results do not have: {', '.join(unknown)}",
-              file=sys.stderr)
-        return 2
+    baselines = new_baselines(args.new_baseline, records)
     db = GainDatabase.open(db_path)
     rows, Sigma, channels, centers, wear = diagnose_fleet(records, db, cfg, baselines)
     write_diagnosis(rows, args.output)

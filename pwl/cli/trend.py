@@ -1,4 +1,6 @@
 """pwl trend RESULTS...: one engine's health over its flights, trend lines and the diagnosis."""
+from .fleet import NEW_BASELINE_HELP
+
 HELP = ("health trends (in percent) and fault diagnosis of one engine over its flights (results files "
         "of pwl run, in any order: sorted by flight_time, then flight_index, then file name); exit "
         "status 1 when a fault is detected at the latest flight, or a results file could not be read "
@@ -15,6 +17,7 @@ def add_arguments(p):
                         "diagnose does (default: none, the engine against its own scatter)")
     p.add_argument("--plot", help="PNG file of the health trends, needs matplotlib (default: none; "
                                   "with several engines, one file each: NAME_ENGINE.png)")
+    p.add_argument("--new-baseline", metavar="ENGINE:FLIGHT", action="append", default=[], help=NEW_BASELINE_HELP)
 
 
 def run(args) -> int:
@@ -23,7 +26,7 @@ def run(args) -> int:
     from ..database import GainDatabase
     from ..fleet.diagnose import copies, group_engines, mixed_engines, order_notes
     from ..fleet.trending import engine_trend, plot_trend
-    from .fleet import database_of, read_flights, results_files
+    from .fleet import database_of, new_baselines, read_flights, results_files
     from .output import check_output, plot_or_note
 
     check_output(args.plot)
@@ -36,9 +39,10 @@ def run(args) -> int:
         print(f"pwl: warning: {line}", file=sys.stderr)
     fleet, fleet_skipped = read_flights(results_files(args.fleet)) if args.fleet else (None, [])
     engines = group_engines(records)
+    baselines = new_baselines(args.new_baseline, records)
     status = int(bool(skipped or fleet_skipped))   # as pwl fleet diagnose: a file it could not read is a finding
     for i, (eng, recs) in enumerate(engines.items()):
-        tr = engine_trend(recs, db, fleet=fleet)
+        tr = engine_trend(recs, db, fleet=fleet, new_baselines=tuple(baselines.get(eng, ())))
         print(("\n" if i else "") + tr.table())
         if args.plot:
             path = args.plot if len(engines) == 1 else args.plot.replace(".png", f"_{eng}.png")

@@ -183,14 +183,16 @@ def health_notes(es) -> list[str]:
 
 
 def engine_trend(records: list[FlightRecord], db: GainDatabase,
-                 cfg: DiagnosisConfig = DiagnosisConfig(), fleet: list[FlightRecord] | None = None) -> EngineTrend:
+                 cfg: DiagnosisConfig = DiagnosisConfig(), fleet: list[FlightRecord] | None = None,
+                 new_baselines: tuple = ()) -> EngineTrend:
     """Trend and diagnosis of one engine's flights (any order: they are sorted by time).
 
     ``fleet``: the flights of the engine's fleet (may include its own). Then the engine is judged
     as ``pwl fleet diagnose`` judges it: against the fleet's flight-to-flight scatter and its
     normal wear and baseline level (:func:`pwl.fleet.diagnose.wear_reference`,
     :func:`~pwl.fleet.diagnose.level_reference`). Alone, against its own scatter (which
-    holds an intermittent fault's toggles) and ``min_rate`` for wear."""
+    holds an intermittent fault's toggles) and ``min_rate`` for wear. ``new_baselines``: flight
+    numbers where the engine starts a new baseline (:func:`~pwl.fleet.diagnose.diagnose_engine`)."""
     mine = {os.path.realpath(r.source) for r in records}     # however the paths were spelt
     others = [r for r in (fleet or []) if os.path.realpath(r.source) not in mine]
     sig, centers = prepare(records + others, db)
@@ -202,7 +204,7 @@ def engine_trend(records: list[FlightRecord], db: GainDatabase,
         wear, level = fleet_norms(series, Sigma, cfg, detail_units(db))
     else:
         Sigma = noise_covariance([es], cfg.floor)
-    dec = diagnose_engine(es, Sigma, cfg, wear, level)
+    dec = diagnose_engine(es, Sigma, cfg, wear, level, new_baselines)
     H = es.h_hat
     ok = np.all(np.isfinite(H), axis=1)
     x = np.flatnonzero(ok).astype(float)
