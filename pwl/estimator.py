@@ -80,11 +80,6 @@ def _low_rate_step(x: np.ndarray, max_rows: int) -> int:
     return med if 2 <= med <= max_rows and np.mean(steps <= 2 * med) >= 0.9 else 0
 
 
-def _low_rate_steps(a: np.ndarray, max_rows: int) -> dict[int, int]:
-    """The low-rate columns of ``a`` (n, k) (:func:`_low_rate_step`): column -> median step."""
-    return {j: m for j in range(a.shape[1]) if (m := _low_rate_step(a[:, j], max_rows))}
-
-
 def _fill_low_rate(a: np.ndarray, j: int, med: int) -> None:
     """In place: column j of ``a`` holds each sample over the empty rows after it, up to twice
     ``med`` rows (a longer gap stays empty: a dropout)."""
@@ -100,7 +95,7 @@ def hold_low_rate(a: np.ndarray, max_rows: int) -> dict[int, int]:
     ``max_rows`` rows apart) holds each sample over the empty rows after it, up to twice the
     median step between its samples (a longer gap stays empty: a dropout). Returns column ->
     median step (rows) of the columns held."""
-    held = _low_rate_steps(a, max_rows)
+    held = {j: m for j in range(a.shape[1]) if (m := _low_rate_step(a[:, j], max_rows))}
     for j, med in held.items():
         _fill_low_rate(a, j, med)
     return held

@@ -134,6 +134,12 @@ def component(column: str) -> str:
     return column.rsplit("_", 1)[0] if "_" in column else column
 
 
+def _testable(h: Hypothesis, S: np.ndarray) -> bool:
+    """Whether the channels of signatures S (m, ncol) can test ``h``: each of its columns moves
+    one of them (a bias of a sensor without data cannot be tested)."""
+    return bool(np.linalg.norm(S[:, h.columns], axis=0).min() > 1e-9)
+
+
 def hypotheses(columns: list[str], pairs: bool = True) -> list[Hypothesis]:
     """The bank: one component (all its health parameters, grouped by the name before the last
     ``_``: fan_eff, fan_flow -> fan), every pair of components, every component with every sensor
@@ -722,7 +728,7 @@ def common_steps(series: list[EngineSeries], Sigma: np.ndarray,
     isolated = []                                # (engine, flight number, hypothesis index, fit)
     for es, D, Wt, t, S, taus in eng:
         # the hypotheses its channels can test (a bias of a sensor it lacks is not)
-        can = [i for i, h in enumerate(bank) if np.linalg.norm(S[:, h.columns], axis=0).min() > 1e-9]
+        can = [i for i, h in enumerate(bank) if _testable(h, S)]
         for tau in taus:
             got = _fit_changes(D, Wt, S, t, [tau], "step", [bank[i] for i in can], cfg, trend=cfg.wear,
                                steps=[s for s in taus if s != tau])
@@ -1274,6 +1280,20 @@ TRANSITION_ALPHA = 1e-6
 TRANSITION_SPREAD = 0.3
 
 
+def _around(D: np.ndarray, Wt: np.ndarray, k: int):
+    """The flight before the latest (row -2 of deviations D (n, m)) against the mean b of up to k
+    flights before it: (x, y, b, scale, cut, one_state) with x, y rows -2 and -1 less b, whitened
+    (Wt), scale the variance factor of a flight's difference from b, cut the
+    :data:`TRANSITION_ALPHA` chi-square quantile, one_state whether each of those k flights lies
+    within cut of b (:func:`_transition`, :func:`_excursion`)."""
+    before = D[max(0, D.shape[0] - 2 - k): -2]
+    b = before.mean(axis=0)
+    x, y = Wt @ (D[-2] - b), Wt @ (D[-1] - b)
+    cut = stats.chi2.ppf(1.0 - TRANSITION_ALPHA, x.size)
+    one_state = np.max(np.sum(((before - b) @ Wt.T) ** 2, axis=1)) <= cut
+    return x, y, b, 1.0 + 1.0 / before.shape[0], cut, one_state
+
+
 def _transition(D: np.ndarray, Wt: np.ndarray, regime: np.ndarray) -> bool:
     """Whether the flight before the latest (row -2 of deviations D (n, m), whitening Wt (m, m),
     ``regime`` (m,) each channel's regime) changed during the flight: a fault that began in
@@ -1288,13 +1308,8 @@ def _transition(D: np.ndarray, Wt: np.ndarray, regime: np.ndarray) -> bool:
     regimes = np.unique(regime)
     if D.shape[0] < 4 or regimes.size < 2:
         return False
-    before = D[max(0, D.shape[0] - 5): -2]
-    nb = before.shape[0]
-    b = before.mean(axis=0)
-    x, y = Wt @ (D[-2] - b), Wt @ (D[-1] - b)
-    scale = 1.0 + 1.0 / nb
-    cut = stats.chi2.ppf(1.0 - TRANSITION_ALPHA, y.size)
-    if y @ y < cut * scale or np.max(np.sum(((before - b) @ Wt.T) ** 2, axis=1)) > cut:
+    x, y, b, scale, cut, one_state = _around(D, Wt, 3)
+    if y @ y < cut * scale or not one_state:
         return False                              # no change to share out, or no one state before it
     Y = np.column_stack([Wt @ np.where(regime == r, D[-1] - b, 0.0) for r in regimes])
     shares = np.linalg.lstsq(Y, x, rcond=None)[0]
@@ -1326,14 +1341,9 @@ def _excursion(D: np.ndarray, Wt: np.ndarray, S: np.ndarray, bank: list[Hypothes
     44 on the normal flights after it). Components do not get better by themselves a flight later."""
     if D.shape[0] < 4:
         return False
-    before = D[max(0, D.shape[0] - 6): -2]
-    b = before.mean(axis=0)
-    x, y = Wt @ (D[-2] - b), Wt @ (D[-1] - b)
-    scale = 1.0 + 1.0 / before.shape[0]
-    cut = stats.chi2.ppf(1.0 - TRANSITION_ALPHA, x.size)
+    x, y, _, scale, cut, one_state = _around(D, Wt, 4)
     back = y @ y <= max(cut * scale, EXCURSION_BACK ** 2 * (x @ x))
-    if not (x @ x > cut * scale and back and (x - y) @ (x - y) > 2.0 * cut) or \
-            np.max(np.sum(((before - b) @ Wt.T) ** 2, axis=1)) > cut:
+    if not (x @ x > cut * scale and back and (x - y) @ (x - y) > 2.0 * cut and one_state):
         return False
     for h in bank:
         if h.name.startswith("sensor:") and "+" not in h.name:
@@ -1397,7 +1407,9 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
         # delivery) taken in once present on half the flights dropped every flight before it, the
         # baseline with them, and a fault found before was no longer seen (an HPC loss 'ok' from
         # flight 11 when T24 had been missing on flights 0-5)
-        keep = present[k] & (upto.mean(axis=0) >= 0.5) & (present[first: first + cfg.n_base + 1].mean(axis=0) >= 0.5)
+        def usable(first):
+            return present[k] & (upto.mean(axis=0) >= 0.5) & (present[first: first + cfg.n_base + 1].mean(axis=0) >= 0.5)
+        keep = usable(first)
         dec.missing = _missing(es.channels, present[k])
         rowsok = np.flatnonzero(np.all(upto[:, keep], axis=1))
         if undo is not None and undo[0] == k - 1:
@@ -1409,11 +1421,10 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
                 ix = np.flatnonzero(keep)
                 Sb = np.nanmean(es.S[was][:, ix], axis=0)
                 if _excursion(es.D[was][:, ix], whitening(Sigma, ix), Sb,
-                              [h for h in bank_all if np.linalg.norm(Sb[:, h.columns], axis=0).min() > 1e-9]):
+                              [h for h in bank_all if _testable(h, Sb)]):
                     first, found = undo[1], undo[2]
                     off_once.append(k - 1)
-                    keep = present[k] & (upto.mean(axis=0) >= 0.5) & \
-                        (present[first: first + cfg.n_base + 1].mean(axis=0) >= 0.5)
+                    keep = usable(first)
                     rowsok = np.flatnonzero(np.all(upto[:, keep], axis=1))
         rowsok = rowsok[(rowsok >= first) & ~np.isin(rowsok, changed_in_flight + off_once)]
         if rowsok.size < cfg.n_base + 1:
@@ -1426,7 +1437,7 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
             Sk = es.S[rowsok][:, idx]                 # each flight's signatures
             Sbar_all = np.nanmean(Sk, axis=0)
             # hypotheses testable with these channels (a bias of a channel without data is not)
-            bank = [h for h in bank_all if np.linalg.norm(Sbar_all[:, h.columns], axis=0).min() > 1e-9]
+            bank = [h for h in bank_all if _testable(h, Sbar_all)]
             t = number[rowsok]
             Wt = whitening(Sigma, idx)
             if offsets is None and level is not None and first == 0:
