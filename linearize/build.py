@@ -31,7 +31,8 @@ from concurrent.futures import Executor, as_completed
 
 import numpy as np
 
-from pwl.database import COMPUTED, EXTRAPOLATED, FILLED, OUT_NONE, REPLACED, Correction, GainDatabase
+from pwl.airdata import ambient_offset
+from pwl.database import COMPUTED, EXTRAPOLATED, FILLED, OUT_NONE, REPLACED, Ambient, Correction, GainDatabase
 from pwl.errors import PwlError
 from pwl.grid import Axis, Grid
 from pwl.runtime import augment
@@ -129,13 +130,20 @@ def _plant(ref):
     return _PLANTS[ref]
 
 
-def trim_line(ref, points, h):
+def trim_line(ref, points, h, span: float = 0.0):
     """Trims at ``points`` (k, np) in the given order, each warm-started from the last success.
 
-    Returns (x, u, y, z arrays (k, n) with NaN rows where the trim failed, list of error strings).
+    With ``span`` > 0 K also the trims' change with the day's ambient at each point: trimmed again
+    at ISA +- span (warm-started from the standard day's trim), in corrected units,
+    ``ambient_<kind>`` (k, 2, n) = [c1, c2] of trim(dT) = trim + c1 dT + c2 dT^2 (:func:`ambient_terms`).
+
+    Returns (x, u, y, z arrays (k, n) with NaN rows where the trim failed [, ambient_x..z (k, 2, n)
+    NaN where no ambient trim converged], list of error strings).
     """
     plant = _plant(ref)
     out = {k: np.full((len(points), len(proto.names(plant, k))), np.nan) for k in "xuyz"}
+    if span > 0.0:
+        out |= {f"ambient_{k}": np.full((len(points), 2, len(proto.names(plant, k))), np.nan) for k in "xuyz"}
     errors = [""] * len(points)
     guess = None
     for i, p in enumerate(points):
@@ -149,7 +157,46 @@ def trim_line(ref, points, h):
             guess = t
         except Exception as e:  # recorded per point, filled later
             errors[i] = f"{type(e).__name__}: {e}"
+            continue
+        if span > 0.0:
+            for k, c in ambient_terms(plant, p, h, t, span).items():
+                out[f"ambient_{k}"][i] = c
     return out, errors
+
+
+def ambient_terms(plant, p, h, trim, span: float) -> dict:
+    """kind -> (2, n) [c1 (per K), c2 (per K^2)] of the corrected trim's change with the day's
+    ambient temperature offset dT at scheduling point ``p``: trim_c(dT) = trim_c + c1 dT + c2 dT^2
+    through the plant's trims at dT = -span, 0, +span (``trim``: the standard day's as the plant
+    returned it, the others' start; each day corrected with its own theta, delta). One day failing: linear through the other
+    (c2 = 0); both: NaN (filled along the power line by the builder)."""
+    p = np.asarray(p, dtype=np.float64)
+    env0 = plant.environment(p)
+    fac0 = proto.correction_factors(plant, env0)
+    base = {k: np.asarray(trim[k], dtype=np.float64).reshape(-1) / fac0[k] for k in "xuyz"}
+    days = {}
+    for dT in (span, -span):
+        env = proto.day_environment(plant, p, dT)
+        try:
+            t = plant.trim(p, h, env, guess=trim)
+            fac = proto.correction_factors(plant, env)
+            v = {k: np.asarray(t[k], dtype=np.float64).reshape(-1) / fac[k] for k in "xuyz"}
+        except Exception:  # the plant's own failure on that day: the other day serves
+            continue
+        if all(np.all(np.isfinite(a)) for a in v.values()):
+            days[dT] = v
+    out = {}
+    for k in "xuyz":
+        c = np.full((2, base[k].size), np.nan)
+        if len(days) == 2:
+            hot, cold = days[span][k], days[-span][k]
+            c[0] = (hot - cold) / (2.0 * span)
+            c[1] = (hot + cold - 2.0 * base[k]) / (2.0 * span * span)
+        elif days:
+            (dT, v), = days.items()
+            c[0], c[1] = (v[k] - base[k]) / dT, 0.0
+        out[k] = c
+    return out
 
 
 def dynamics_point(ref, p, h, guess, dt, method, overrides):
@@ -279,7 +326,7 @@ def _key(spec: BuildSpec, ref, code: str = "") -> str:
     plant = list(ref[1:]) if isinstance(ref, tuple) else [_plant_name(ref), ref.parameters()]
     what = {"plant": plant, "code": code, "power_axis": spec.power_axis, "dt": spec.dt, "differences": spec.differences,
             "perturbation": spec.perturbation, "health_reference": spec.health_reference,
-            "dynamics_hold": spec.dynamics_hold,
+            "dynamics_hold": spec.dynamics_hold, "ambient_span": spec.ambient_span,
             "grids": [{a.name: a.values.tolist() for a in g.axes} for g in (spec.trim_grid, spec.dyn_grid)]}
     return hashlib.sha256(json.dumps(what, sort_keys=True, default=str).encode()).hexdigest()
 
@@ -421,10 +468,15 @@ def build(spec: BuildSpec, out_path, *, plant=None, executor: Executor | None = 
         executor = process_pool(max(1, workers or os.cpu_count() or 1))
     t_start = time.perf_counter()
     try:
-        trim, trim_status, trim_errors = _trims(spec, ref, who, names, h0, executor, parts, progress)
+        span = ambient_span(plant, spec, spec.trim_grid, log)
+        trim, trim_status, trim_errors, no_ambient = _trims(spec, ref, who, names, h0, executor, parts, progress,
+                                                            span)
         dyn, dyn_errors = _dynamics(spec, ref, who, names, h0, trim, hold, executor, parts, progress)
         log(f"trims: {spec.trim_grid.size - len(trim_errors)}/{spec.trim_grid.size} converged"
             + "".join(f"\n  failed {e}" for e in trim_errors.values()))
+        if span > 0.0:
+            log(f"ambient: trims at ISA -+ {span:g} K on {spec.trim_grid.size - no_ambient}/{spec.trim_grid.size} "
+                "points (the others filled along the power axis)")
         log(f"dynamics: {spec.dyn_grid.size - len(dyn_errors)}/{spec.dyn_grid.size} computed"
             + "".join(f"\n  failed {e}" for e in dyn_errors.values()))
 
@@ -438,6 +490,9 @@ def build(spec: BuildSpec, out_path, *, plant=None, executor: Executor | None = 
                 raise BuildError(f"{who}: correcting the trim failed at {_reason(point_label(tg, p), e)}") from e
             for k in "xuyz":
                 trim[k].reshape(tg.size, -1)[i] /= fac[k]
+        ambient = None
+        if span > 0.0:
+            ambient = Ambient({k: trim[f"ambient_{k}"] for k in "xuyz"}, span, "alt", "Mach")
 
         # ---- noise covariances per dynamics point (corrected units: noise scales with the value)
         pts = []
@@ -471,7 +526,7 @@ def build(spec: BuildSpec, out_path, *, plant=None, executor: Executor | None = 
         tuner={"V": fd["V"], "V_pinv": np.linalg.pinv(fd["V"]), "h_ref": h0},
         kalman=kalman_arrays(fd, D),
         kalman_status=fd["status"].reshape(D), kalman_donor=fd["donor"].reshape(D), dt=spec.dt,
-        schedule=proto.schedule(plant), correction=corr, log_channels=proto.log_channels(plant),
+        schedule=proto.schedule(plant), correction=corr, ambient=ambient, log_channels=proto.log_channels(plant),
         attrs={"model": spec.plant if isinstance(ref, tuple) else _plant_name(plant), "model_name": plant.name,
                "health_ranges": proto.health_ranges(plant),
                "model_parameters": plant.parameters(), "spec": spec.text,
@@ -697,16 +752,25 @@ def _targets(targets, names, where):
     return list(dict.fromkeys(out))
 
 
-def _trims(spec, ref, who, names, h0, executor, parts, progress):
+def _trims(spec, ref, who, names, h0, executor, parts, progress, span=0.0):
     """Phase 1: trims on the trim grid, one task per power line; failed trims filled along it.
 
-    Returns (trims x, u, y, z (grid shape + (n,)), status, {point label: reason} of failures)."""
+    With ``span`` > 0 also the ambient terms (:func:`ambient_terms`): ``ambient_<kind>`` (grid shape +
+    (2, n)), filled along the power line like the trims where neither day converged (zero on a line
+    without any: that line's trims do not move with the ambient; counted in the build log).
+
+    Returns (trims x, u, y, z (grid shape + (n,)) [and ambient_x..z], status, {point label:
+    reason} of failures, the number of points without an ambient day of their own)."""
     tg = spec.trim_grid
     pa = tg.names.index(spec.power_axis)
     nodes = tg.nodes().reshape(tg.shape + (tg.ndim,))
     other = [s for j, s in enumerate(tg.shape) if j != pa]
     n = tg.shape[pa]
     trim = {k: np.full(tg.shape + (len(names[k]),), np.nan) for k in "xuyz"}
+    keys = list("xuyz")
+    if span > 0.0:
+        keys += [f"ambient_{k}" for k in "xuyz"]
+        trim |= {f"ambient_{k}": np.full(tg.shape + (2, len(names[k])), np.nan) for k in "xuyz"}
     ok = np.zeros(tg.shape, bool)
     errors = {}
     lines = {}
@@ -718,7 +782,7 @@ def _trims(spec, ref, who, names, h0, executor, parts, progress):
 
     def record(sl, out, errs):
         """Results of one power line, in grid order."""
-        for k in "xuyz":
+        for k in keys:
             trim[k][sl] = out[k]
         for j, e in enumerate(errs):
             node = list(sl)
@@ -730,10 +794,11 @@ def _trims(spec, ref, who, names, h0, executor, parts, progress):
 
     def store(name, res):
         if isinstance(res, Exception):  # the task itself died: every point failed
-            record(lines[name], {k: np.full((n, len(names[k])), np.nan) for k in "xuyz"}, [res] * n)
+            record(lines[name], {k: np.full((n,) + trim[k].shape[len(tg.shape):], np.nan) for k in keys},
+                   [res] * n)
             return
         out, errs = res  # solved from the top of the power axis down: reverse to grid order
-        out = {k: out[k][::-1] for k in "xuyz"}
+        out = {k: out[k][::-1] for k in keys}
         errs = list(errs)[::-1]
         if not any(errs):  # a line with a failure is solved again by a resumed build
             parts.put(name, out)
@@ -745,7 +810,7 @@ def _trims(spec, ref, who, names, h0, executor, parts, progress):
         if got is not None:
             record(sl, got, [""] * n)
         else:  # from the top of the power axis down: trims converge best near design power
-            tasks.append((name, (ref, nodes[sl][::-1], h0)))
+            tasks.append((name, (ref, nodes[sl][::-1], h0, span)))
     if len(tasks) < len(lines):
         notice(f"resuming: reusing {(len(lines) - len(tasks)) * n} of {tg.size} trim points from {parts.dir}/")
         bar.update(len(lines) - len(tasks))
@@ -756,6 +821,7 @@ def _trims(spec, ref, who, names, h0, executor, parts, progress):
         raise BuildError(f"{who}: every trim failed ({tg.size} points), e.g. at {next(iter(errors.values()))}")
     status = np.zeros(tg.shape, np.int8)
     power = tg.axes[pa].values
+    no_ambient = 0
     for sl in lines.values():
         if not ok[sl].any():
             first = errors[point_label(tg, nodes[sl][0])]
@@ -764,7 +830,38 @@ def _trims(spec, ref, who, names, h0, executor, parts, progress):
         for k in "xuyz":
             trim[k][sl], st = fill_line(trim[k][sl], ok[sl], power)
         status[sl] = st
-    return trim, status, errors
+        for k in keys[4:]:
+            a = trim[k][sl].reshape(n, -1)
+            good = np.isfinite(a).all(axis=1)
+            if k == keys[4]:
+                no_ambient += int(n - good.sum())
+            trim[k][sl] = (fill_line(a, good, power)[0] if good.any() else np.zeros_like(a)).reshape(trim[k][sl].shape)
+    return trim, status, errors, no_ambient
+
+
+def ambient_span(plant, spec: BuildSpec, grid, log=print) -> float:
+    """The ISA offset (K) the build trims hot and cold days at: ``spec.ambient_span`` for a plant
+    whose trims can follow the day's ambient at run time (:func:`linearize.plant.ambient_axes`)
+    and whose inlet temperature gives back the day's offset by the runtime's formula
+    (:func:`pwl.airdata.ambient_offset`, checked at every trim-grid node within 0.1 K); else 0, with
+    a log line saying why when the spec asked for it."""
+    span = float(spec.ambient_span)
+    if span <= 0.0:
+        return 0.0
+    axes = proto.ambient_axes(plant)
+    if axes is None:
+        return 0.0
+    t_std = float(plant.correction.get("T_std", 288.15))
+    worst = 0.0
+    for p in grid.nodes():
+        for dT in (span, -span):
+            theta, _ = plant.theta_delta(proto.day_environment(plant, p, dT))
+            worst = max(worst, abs(float(ambient_offset(theta * t_std, p[axes[0]], p[axes[1]])) - dT))
+    if worst > 0.1:
+        log(f"ambient: no hot/cold-day trims: the plant's inlet temperature on a day {span:g} K off ISA "
+            f"gives the day's offset {worst:.2g} K off by the runtime's formula (ISA, ram rise gamma 1.4)")
+        return 0.0
+    return span
 
 
 def _in_order(errors: dict, grid, points) -> dict:

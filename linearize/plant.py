@@ -192,3 +192,45 @@ def log_channels(plant) -> dict[str, tuple[str, float, float]]:
         lo, hi = ranges.get(c, (-math.inf, math.inf))
         out[c] = (plant.units[c], float(lo), float(hi))
     return out
+
+
+def ambient_offset_index(plant, env) -> int | None:
+    """Index of the ambient temperature offset (dTamb, K) in the plant's environment vector
+    ``env``: the position of "dTamb" in the plant's optional ``env_names``, else the Plant
+    protocol's turbofan layout [alt, Mach, dTamb] when the plant's units name "dTamb" and env
+    has three entries; None when the plant has no such entry (no hot or cold days)."""
+    names = getattr(plant, "env_names", None)
+    if names is not None:
+        return list(names).index("dTamb") if "dTamb" in names else None
+    if "dTamb" in getattr(plant, "units", {}) and len(env) == 3:
+        return 2
+    return None
+
+
+def day_environment(plant, p, dT: float = 0.0) -> np.ndarray:
+    """The plant's environment at scheduling point ``p`` with the ambient temperature ``dT`` K
+    off its standard day (0: ``plant.environment(p)`` itself); a :class:`PlantProtocolError`
+    when the environment has no ambient offset (dTamb) and dT is not 0."""
+    env = np.array(plant.environment(p), dtype=np.float64)
+    if dT == 0.0:
+        return env
+    i = ambient_offset_index(plant, env)
+    if i is None:
+        raise PlantProtocolError(f"plant {getattr(plant, 'name', type(plant).__name__)}: its environment "
+                                 "has no ambient temperature offset (dTamb), so no hot or cold day")
+    env[i] += dT
+    return env
+
+
+def ambient_axes(plant) -> tuple[int, int] | None:
+    """(index of "alt", index of "Mach") among the plant's scheduling variables when its trims can
+    be moved to the day's ambient at run time: an environment with an ambient temperature offset
+    (:func:`ambient_offset_index`), a parameter correction (theta from the inlet temperature) and
+    the pressure altitude (m) and flight Mach number among the scheduling variables; else None."""
+    p = list(plant.p_names)
+    if getattr(plant, "correction", None) is None or "alt" not in p or "Mach" not in p:
+        return None
+    probe = np.zeros(len(p))
+    if ambient_offset_index(plant, plant.environment(probe)) is None:
+        return None
+    return p.index("alt"), p.index("Mach")

@@ -25,6 +25,8 @@ Example (every key but ``model.plant``, ``trim_grid`` and ``dynamics_grid`` has 
     health_reference = {}     # name -> value (overrides the plant's h_ref)
     dynamics_hold = {}        # scheduling variables left out of [dynamics_grid] -> value they are
                               # linearized at (default: the middle of the trim grid's axis)
+    ambient_span = 30.0       # K: trims also at ISA -+ this, for the trims' change on hot and cold
+                              # days (a plant with dTamb, alt and Mach; 0: none; docs/building.md)
 
     [kalman]
     q_x = 1e-3                # state process noise, one sigma per step, fraction of the trim value
@@ -80,6 +82,10 @@ class BuildSpec:
         Health parameter -> reference value h_ref (fraction; overrides the plant's).
     dynamics_hold : dict
         Scheduling variables left out of the dynamics grid -> the value they are linearized at.
+    ambient_span : float
+        K: the trim grid is also trimmed at ISA -+ ambient_span, and the database stores the trims'
+        change with the day's ambient (quadratic in the offset; :class:`pwl.database.Ambient`),
+        for a plant whose environment has dTamb and whose scheduling has alt and Mach; 0: not.
     q_x, q_h : float or dict
         Process noise, one sigma per step: states (fraction of the trim value) and health random
         walk (fraction); a number, or name -> number with ``default``.
@@ -110,6 +116,7 @@ class BuildSpec:
     perturbation: dict = field(default_factory=dict)
     health_reference: dict = field(default_factory=dict)
     dynamics_hold: dict = field(default_factory=dict)
+    ambient_span: float = 30.0
     q_x: float | dict = 1e-3
     q_h: float | dict = 1e-4
     r: dict = field(default_factory=dict)
@@ -157,7 +164,8 @@ class BuildSpec:
         except tomllib.TOMLDecodeError as e:
             raise SpecError(f"{path}: not valid TOML ({e})") from None
         known = {"model": {"plant", "parameters"}, "build": {"power_axis", "dt", "differences", "out_of_range",
-                                                           "perturbation", "health_reference", "dynamics_hold"},
+                                                           "perturbation", "health_reference", "dynamics_hold",
+                                                           "ambient_span"},
                  "kalman": {"q_x", "q_h", "r"}, "tuners": {"method", "n", "targets", "health_sigma"}}
         extra = set(d) - set(known) - {"trim_grid", "dynamics_grid"}
         if extra:
@@ -171,6 +179,9 @@ class BuildSpec:
         dt = build.number("dt", 0.015)
         if not dt > 0:
             raise SpecError(f"{path}: [build] dt = {dt} must be positive")
+        span = build.number("ambient_span", 30.0)
+        if not (0.0 <= span <= 100.0):
+            raise SpecError(f"{path}: [build] ambient_span = {span} K must be in 0..100 (0: no ambient trims)")
         if not tun.strings("targets", ["h"]):
             raise SpecError(f"{path}: [tuners] targets is empty: name what the tuners should estimate "
                             '("h" for every health parameter, or health and unmeasured-output names)')
@@ -178,7 +189,7 @@ class BuildSpec:
                    dyn_grid=dg, power_axis=power, dt=dt,
                    differences=build.string("differences", "central", ("central", "forward")),
                    perturbation=build.numbers("perturbation"), health_reference=build.numbers("health_reference"),
-                   dynamics_hold=build.numbers("dynamics_hold"),
+                   dynamics_hold=build.numbers("dynamics_hold"), ambient_span=span,
                    q_x=kal.number_or_numbers("q_x", 1e-3), q_h=kal.number_or_numbers("q_h", 1e-4),
                    r=kal.numbers("r"), tuner_method=tun.string("method", "subset", ("subset", "optimal")),
                    n_tuners=tun.integer("n", 4),

@@ -84,33 +84,6 @@ def outputs(plant) -> tuple[list, list]:
     return names, [plant.units[n] for n in names]
 
 
-def ambient_offset_index(plant, env) -> int | None:
-    """Index of the ambient temperature offset (dTamb, K) in the plant's environment vector
-    ``env``: the position of "dTamb" in the plant's optional ``env_names``, else the Plant
-    protocol's turbofan layout [alt, Mach, dTamb] when the plant's units name "dTamb" and env
-    has three entries; None when the plant has no such entry (no hot or cold days)."""
-    names = getattr(plant, "env_names", None)
-    if names is not None:
-        return list(names).index("dTamb") if "dTamb" in names else None
-    if "dTamb" in getattr(plant, "units", {}) and len(env) == 3:
-        return 2
-    return None
-
-
-def day_environment(plant, p, dT: float = 0.0) -> np.ndarray:
-    """The plant's environment at scheduling point ``p`` with the ambient temperature ``dT`` K
-    off its standard day (0: ``plant.environment(p)`` itself)."""
-    env = np.array(plant.environment(p), dtype=np.float64)
-    if dT == 0.0:
-        return env
-    i = ambient_offset_index(plant, env)
-    if i is None:
-        raise ValidateError(f"plant {getattr(plant, 'name', type(plant).__name__)}: its environment "
-                            "has no ambient temperature offset (dTamb), so no hot or cold day")
-    env[i] += dT
-    return env
-
-
 def open_loop(db: GainDatabase) -> Estimator:
     """An estimator with every gain zero: the piecewise-linear model alone. A shallow copy, not
     ``dataclasses.replace``: that would re-validate the database, and zero gains are refused there
@@ -170,7 +143,7 @@ def plant_trims(db: GainDatabase, plant, n: int, seed: int, failed: list, dT: fl
     every day."""
     h = db.tuner["h_ref"]
     for p in random_points(db.trim_grid, n, seed):
-        env = day_environment(plant, p, dT)
+        env = proto.day_environment(plant, p, dT)
         try:
             t = plant.trim(p, h, env)
         except Exception as e:  # the plant's own error
@@ -217,18 +190,14 @@ def scheduled_trims(db: GainDatabase, plant=None, n: int = 200, seed: int = 1, d
     trim tables are interpolated there and un-corrected, and compared with the plant's y and z
     (% of value; stall margins in points). This is the offset every estimate inherits at steady
     state. Returns (errors, points, failed)."""
-    from pwl.interp import interpolate
-
     plant = plant or plant_of(db)
     names, units = outputs(plant)
     pts, errs, failed = [], [], []
     for p, env, t in plant_trims(db, plant, n, seed, failed, dT):
         log = log_of(plant, db, p, env, *(np.asarray(t[k], dtype=np.float64)[None, :] for k in "xuyz"))
         q, th, de = runtime_point(db, log)
-        at = [q[0, db.names["p"].index(a.name)] for a in db.trim_grid.axes]
-        model = np.concatenate([
-            interpolate(db.trim_grid, db.trim[k], np.array(at))[0]
-            * db.correction_factor(db.names[k], th, de)[0] for k in "yz"])
+        trims = db.trims_at(q, th)           # on the plant's day, as the runtime moves them
+        model = np.concatenate([trims[k][0] * db.correction_factor(db.names[k], th, de)[0] for k in "yz"])
         errs.append(output_errors(names, units, model, np.concatenate([t["y"], t["z"]])))
         pts.append(p)
     return np.array(errs).reshape(-1, len(names)), np.array(pts), failed

@@ -61,6 +61,17 @@ def isa_pressure(alt_m):
     return _isa(alt_m)
 
 
+@vectorize(["float64(float64, float64, float64)"], cache=True, nopython=True)
+def ambient_offset(t_inlet, alt_m, mach):
+    """The day's ambient temperature offset from the ICAO standard atmosphere (K): the static
+    temperature the inlet's total temperature ``t_inlet`` (K) gives at flight Mach ``mach`` (ram
+    rise 1 + (gamma - 1)/2 M^2, gamma 1.4) minus the standard temperature at pressure altitude
+    ``alt_m`` (m; 6.5 K/km lapse to the tropopause at 11 km, 216.65 K above). A ufunc: arrays or
+    scalars, and callable from numba code (the runtime's trims on hot and cold days)."""
+    t_std = _T_SL - _LAPSE * min(alt_m, _H_TROP)
+    return t_inlet / (1.0 + 0.5 * (_GAMMA - 1.0) * mach * mach) - t_std
+
+
 @vectorize(["float64(float64, float64)"], cache=True, nopython=True)
 def inlet_pressure(alt_m, mach):
     """The inlet total pressure (Pa) of full ram recovery at pressure altitude ``alt_m`` (m) and

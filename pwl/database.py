@@ -88,6 +88,29 @@ class Correction:
     P_std: float = 101325.0
 
 
+#: the runtime holds the day's ambient offset within this many times the span its trims were built
+#: over (quadratic beyond the span, held beyond the reach: FLAG_TRIM_OUTSIDE)
+AMBIENT_REACH = 2.0
+
+
+@dataclass
+class Ambient:
+    """The trims' change with the day's ambient temperature at a fixed corrected operating point:
+
+        trim(p, dT) = trim(p) + c1(p) dT + c2(p) dT^2          (corrected units)
+
+    with dT (K) the day's offset from the standard atmosphere, which the runtime computes from the
+    correction's theta channel (the inlet's total temperature) and the scheduling variables
+    ``alt`` (pressure altitude, m) and ``mach`` (:func:`pwl.airdata.ambient_offset`), held within
+    +-AMBIENT_REACH * span. ``coef`` maps kind (x, u, y, z) -> trim grid shape + (2, n): [c1 per K,
+    c2 per K^2], through the plant's trims at ISA -span, 0, +span (``span`` K)."""
+
+    coef: dict[str, np.ndarray]
+    span: float
+    alt: str = "alt"
+    mach: str = "Mach"
+
+
 @dataclass
 class GainDatabase:
     """A gain database in memory (written by ``pwl build`` / :mod:`linearize`; read with
@@ -99,6 +122,8 @@ class GainDatabase:
     - ``names``/``units``: kind (x u y z h q p) -> list of str
     - ``schedule``: per p: (log channel, corrected, scale): p = scale * channel (corrected first)
     - ``trim``: x, u, y, z -> T + (n,); ``trim_status`` int8 T (0 computed, 1 filled, 2 extrapolated)
+    - ``ambient``: optional (builds since 0.7) :class:`Ambient`: the trims on hot and cold days,
+      ``/trim/ambient_<kind>`` T + (2, n)
     - ``dynamics``: A..N discrete-time (dt seconds) -> D + (rows, cols); ``dyn_status`` int8 D
       (0 computed, 1 replaced), ``dyn_donor`` int64 D (flat index of the donor node, -1 none)
     - ``tuner``: V (nq, nh), V_pinv (nh, nq), h_ref (nh,)
@@ -133,6 +158,7 @@ class GainDatabase:
     dt: float
     schedule: list[tuple[str, bool, float]] | None = None
     correction: Correction | None = None
+    ambient: Ambient | None = None
     attrs: dict = field(default_factory=dict)
     zones: tuple[dict, dict] | None = None
     tables: dict[str, tuple[dict, dict]] = field(default_factory=dict)
@@ -263,6 +289,38 @@ class GainDatabase:
         scale = np.array([float(s) for _, _, s in self.schedule])
         return S * scale / np.where(corr, fac, 1.0)
 
+    def ambient_offset(self, p, theta) -> tuple[np.ndarray, np.ndarray]:
+        """The day's ambient offset dT (K) the trims are moved by at operating points ``p`` (n, np)
+        with inlet temperature ratio ``theta`` (n,), as the runtime computes it, and a bool (n,)
+        where it was held at +-AMBIENT_REACH * span; zeros without an ambient record."""
+        p = np.atleast_2d(np.asarray(p, dtype=np.float64))
+        if self.ambient is None:
+            return np.zeros(p.shape[0]), np.zeros(p.shape[0], bool)
+        from .airdata import ambient_offset
+
+        a, names = self.ambient, self.names["p"]
+        dT = ambient_offset(np.asarray(theta, dtype=np.float64) * self.correction.T_std,
+                            p[:, names.index(a.alt)], p[:, names.index(a.mach)])
+        reach = AMBIENT_REACH * a.span
+        return np.clip(dT, -reach, reach), np.abs(dT) > reach
+
+    def trims_at(self, p, theta=1.0) -> dict[str, np.ndarray]:
+        """Trims x, u, y, z (n, n_kind), corrected units, at operating points ``p`` (n, np) on the
+        day of inlet temperature ratio ``theta`` (n,) (the ambient record's change with the day;
+        the interpolation and out-of-range policy of the runtime)."""
+        from .interp import interpolate
+
+        p = np.atleast_2d(np.asarray(p, dtype=np.float64))
+        names = self.names["p"]
+        pt = p[:, [names.index(a) for a in self.trim_grid.names]]
+        out = {k: interpolate(self.trim_grid, self.trim[k], pt) for k in "xuyz"}
+        if self.ambient is not None:
+            dT = self.ambient_offset(p, np.broadcast_to(theta, (p.shape[0],)))[0][:, None]
+            for k in "xuyz":
+                c = interpolate(self.trim_grid, self.ambient.coef[k], pt)
+                out[k] = out[k] + dT * (c[:, 0] + dT * c[:, 1])
+        return out
+
     # ---- the schema --------------------------------------------------------------------------
     def schema(self):
         """(path, dtype kind, shape) of every dataset, from the sizes. The one schema definition."""
@@ -273,6 +331,8 @@ class GainDatabase:
                 "G": (nz, nu), "L": (nx, nh), "M": (ny, nh), "N": (nz, nh)}
         out = [(f"trim/{k}", "f", T + (self.n(k),)) for k in "xuyz"]
         out.append(("trim/status", "i1", T))
+        if self.ambient is not None:
+            out += [(f"trim/ambient_{k}", "f", T + (2, self.n(k))) for k in "xuyz"]
         out += [(f"dynamics/{k}", "f", D + s) for k, s in mats.items()]
         out += [("dynamics/status", "i1", D), ("dynamics/donor", "i8", D)]
         out += [("tuner/V", "f", (nq, nh)), ("tuner/V_pinv", "f", (nh, nq)), ("tuner/h_ref", "f", (nh,))]
@@ -290,6 +350,8 @@ class GainDatabase:
     def _get(self, path: str) -> np.ndarray:
         grp, name = path.split("/")
         if grp == "trim":
+            if name.startswith("ambient_"):
+                return self.ambient.coef[name[len("ambient_"):]]
             return self.trim_status if name == "status" else self.trim[name]
         if grp == "dynamics":
             extra = {"status": self.dyn_status, "donor": self.dyn_donor}
@@ -353,6 +415,13 @@ class GainDatabase:
             channels += [c.theta_channel, c.delta_channel]
             if c.theta_channel == c.delta_channel:
                 raise DatabaseError(f"{where}: /correction theta and delta channels are both {c.theta_channel!r}")
+        if self.ambient is not None:
+            a = self.ambient
+            if self.correction is None or a.alt not in self.names["p"] or a.mach not in self.names["p"]:
+                raise DatabaseError(f"{where}: /trim/ambient_* need a parameter correction and the scheduling "
+                                    f"variables {a.alt!r} and {a.mach!r} (have {self.names['p']})")
+            if not (np.isfinite(a.span) and a.span > 0):
+                raise DatabaseError(f"{where}: /trim attribute ambient_span = {a.span} must be a positive number")
         for c in channels:
             if not isinstance(c, str) or not c.strip() or (self.log_channels is not None
                                                              and c not in self.log_channels):
@@ -451,6 +520,9 @@ class GainDatabase:
             f["dynamics"].attrs["dt"] = float(self.dt)
             f["dynamics"].attrs["method"] = self.attrs.get("discretization", "zoh")
             f.require_group("kalman").attrs["form"] = "update"
+            if self.ambient is not None:
+                f["trim"].attrs.update({"ambient_span": float(self.ambient.span), "ambient_alt": self.ambient.alt,
+                                        "ambient_mach": self.ambient.mach})
             if self.correction is not None:
                 c = f.require_group("correction")
                 c.attrs.update({"theta_channel": self.correction.theta_channel,
@@ -578,6 +650,12 @@ class GainDatabase:
         db.format_version = int(f.attrs.get("format_version", VERSION))
         db.trim = {k: need(f"trim/{k}")[()] for k in "xuyz"}
         db.trim_status = need("trim/status")[()]
+        db.ambient = None
+        if "trim/ambient_x" in f:
+            t = f["trim"]
+            db.ambient = Ambient({k: need(f"trim/ambient_{k}")[()] for k in "xuyz"},
+                                 float(t.attrs.get("ambient_span", np.nan)), attr_str(t, "ambient_alt", "alt"),
+                                 attr_str(t, "ambient_mach", "Mach"))
         db.dynamics = {k: need(f"dynamics/{k}")[()] for k in MATRICES}
         db.dyn_status, db.dyn_donor = need("dynamics/status")[()], need("dynamics/donor")[()]
         db.tuner = {k: need(f"tuner/{k}")[()] for k in ("V", "V_pinv", "h_ref")}
@@ -635,6 +713,9 @@ class GainDatabase:
             lines.append(f"  parameter correction: theta = {self.correction.theta_channel}/"
                          f"{self.correction.T_std:g}, delta = {self.correction.delta_channel}/"
                          f"{self.correction.P_std:g}")
+        if self.ambient is not None:
+            lines.append(f"  hot and cold days: trims quadratic in the ISA offset (built at -+{self.ambient.span:g} K, "
+                         f"held beyond -+{AMBIENT_REACH * self.ambient.span:g} K)")
         if self.zones is not None:
             lines.append(f"  gain zones: {self.zones[1].get('k', '?')}")
         if self.tables:

@@ -27,9 +27,10 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from .airdata import ambient_offset
 from .byref import fields, record
 from .covariance import correct, propagate_augmented
-from .database import OUT_NONE, DatabaseError, GainDatabase
+from .database import AMBIENT_REACH, OUT_NONE, DatabaseError, GainDatabase
 from .errors import UsageError
 from .grid import locate
 from .interp import corner_weights, interp_rows
@@ -140,7 +141,8 @@ class Inputs(NamedTuple):
 
 class Model(NamedTuple):
     """The packed model (read only; :meth:`PackedModel.record`)."""
-    trim_tab: np.ndarray   # (trim nodes, nx+nu+ny+nz [+1]) trims, corrected units [; 1 if filled]
+    trim_tab: np.ndarray   # (trim nodes, nt [+1] [+2 nt]) trims x u y z (nt values), corrected
+                           # units [; 1 if filled] [; the ambient terms c1 (nt), c2 (nt)]
     dyn_tab: np.ndarray    # (dyn nodes, block) A_a..K (+ Q_a, R online): :func:`block_layout`
     dims: np.ndarray       # int64 [nx, nu, ny, nz, nq, nh]
     ex: np.ndarray         # (nc, 2) the distinct correction exponent pairs; pair 0 is (0, 0)
@@ -164,6 +166,9 @@ class Model(NamedTuple):
     sub_tab: np.ndarray    # (dyn nodes, na*na + ny*ny) steady a-priori P and R, row-major: the
                            # update from any subset of sensors (steady mode; else (1, 0))
     filled_col: int        # trim_tab's column that is 1 on filled nodes (FLAG_TRIM_FILLED); -1: none
+    amb_col: int           # trim_tab's first ambient column (c1 of x..z, then c2); -1: none
+    amb_p: np.ndarray      # int64 (2,) the scheduling variables pressure altitude (m) and Mach
+    amb_k: np.ndarray      # (2,) T_std of theta (K), and the largest |dT| used (K)
 
 
 class Grids(NamedTuple):
@@ -394,9 +399,28 @@ def _interpolate(io, model, grids, filt, w, k, osl, ost, cs):
     nt = model.filled_col       # the trim table's column that is 1 on filled nodes (-1: none filled)
     if nt >= 0 and w.tw[_u(nt)] > 1e-9:
         flags |= FLAG_TRIM_FILLED
+    if model.amb_col >= 0:
+        flags |= _ambient_trims(model, w)
     m = corner_weights(filt.d_idx, w.d_frac, grids.d_str, w.d_wts, w.d_rows)
     interp_rows(model.dyn_tab, w.d_wts, w.d_rows, m, w.dw)
     return flags, m, d_out
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _ambient_trims(model, w):
+    """trim += c1 dT + c2 dT^2 in w.tw (the interpolated ambient terms, :class:`pwl.database.Ambient`),
+    dT the day's offset from ISA from theta and the operating point, held within +-amb_k[1]
+    (FLAG_TRIM_OUTSIDE beyond)."""
+    dT = ambient_offset(w.thde[0] * model.amb_k[0], w.p[model.amb_p[0]], w.p[model.amb_p[1]])
+    flags = 0
+    if not abs(dT) <= model.amb_k[1]:
+        dT = min(max(dT, -model.amb_k[1]), model.amb_k[1])
+        flags = FLAG_TRIM_OUTSIDE
+    o = model.amb_col
+    nt = (w.tw.shape[0] - o) // 2
+    for j in range(nt):
+        w.tw[j] += dT * (w.tw[_u(o + j)] + dT * w.tw[_u(o + nt + j)])
+    return flags
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -1104,6 +1128,9 @@ class PackedModel:
     ko_avail: np.ndarray | None = None
     sub_tab: np.ndarray | None = None
     s_state: np.ndarray | None = None
+    amb_col: int = -1
+    amb_p: np.ndarray | None = None
+    amb_k: np.ndarray | None = None
 
     @classmethod
     def from_database(cls, db: GainDatabase, tune: bool = True, online: bool = False,
@@ -1124,6 +1151,8 @@ class PackedModel:
         cols = [db.trim[k].reshape(tg.size, -1) for k in "xuyz"]
         if np.any(db.trim_status != 0):       # the filled nodes' column, only where there are some
             cols.append((db.trim_status != 0).astype(float).reshape(tg.size, 1))
+        if db.ambient is not None:            # c1 of x..z, then c2
+            cols += [db.ambient.coef[k][..., j, :].reshape(tg.size, -1) for j in (0, 1) for k in "xuyz"]
         trim_tab = np.ascontiguousarray(np.concatenate(cols, axis=1))
         aug = augmented(db)
         if not tune:
@@ -1163,7 +1192,7 @@ class PackedModel:
                    db.correction.delta_channel if db.correction else None, online, p_tab,
                    z_gains, z_labels, ko_tab, ko_avail, sub_tab,
                    np.array([db.names["x"].index(c) if c in db.names["x"] else -1 for c in chans],
-                            dtype=np.int64))
+                            dtype=np.int64), *_pack_ambient(db))
 
     def state_size(self) -> int:
         """Length of the filter state vector (:func:`state_layout`)."""
@@ -1180,18 +1209,32 @@ class PackedModel:
         if self.dyn_tab.shape[1] != width:   # zone gains: no K in the block
             raise DatabaseError(f"packed dynamics block of {self.dyn_tab.shape[1]} values, the kernel's "
                                 f"layout has {width}: PackedModel and block_layout disagree")
+        nt = nx + nu + ny + nz
+        filled = nt if self.trim_tab.shape[1] in (nt + 1, 3 * nt + 1) else -1
         return Model(self.trim_tab, self.dyn_tab, self.dims, self.ex, self.cls, self.s_scale, self.s_corr,
                      self.s_state,
                      bool(self.online), self.p_tab, np.ascontiguousarray(V_pinv), self.z_gains,
                      self.z_labels, np.ascontiguousarray(gate, dtype=np.float64), int(stuck_n), int(settle_n),
                      int(readmit_n), self.ko_tab, self.ko_avail,
-                     self.sub_tab, nx + nu + ny + nz if self.trim_tab.shape[1] > nx + nu + ny + nz else -1)
+                     self.sub_tab, filled, int(self.amb_col), self.amb_p, self.amb_k)
 
     def grids(self, db: GainDatabase) -> Grids:
         """The kernel's :class:`Grids` record of ``db`` (the database this model packs)."""
         tg, dg = db.trim_grid, db.dyn_grid
         return Grids(tg.bp, tg.off, tg.strides, self.t_pidx, dg.bp, dg.off, dg.strides, self.d_pidx,
                      bool(tg.extrapolate))
+
+
+def _pack_ambient(db: GainDatabase):
+    """(amb_col, amb_p, amb_k) of :class:`Model`: the trim table's first ambient column (the last
+    2 nt columns; -1 without an ambient record), the scheduling variables altitude and Mach, and
+    [T_std, the largest |dT| used]."""
+    if db.ambient is None:
+        return -1, np.zeros(2, dtype=np.int64), np.zeros(2)
+    nt = sum(db.n(k) for k in "xuyz")
+    a, names = db.ambient, db.names["p"]
+    return (nt + int(np.any(db.trim_status != 0)), np.array([names.index(a.alt), names.index(a.mach)], dtype=np.int64),
+            np.array([db.correction.T_std, AMBIENT_REACH * a.span]))
 
 
 def _pack_zones(db: GainDatabase, zones, tune: bool):

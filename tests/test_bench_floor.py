@@ -16,9 +16,9 @@ def test_floor_loop_equals_the_reference_filter():
     m, g = est._model, est._grids
     out = {o: np.empty_like(ref[o]) for o in ("x_hat", "q_hat", "y_hat", "residual", "z_hat")}
     make_floor(m.dims, S.shape[1])(U, Y, S, TH, DE, m.trim_tab, m.dyn_tab, m.ex, m.cls, m.s_scale,
-                                  m.s_corr, g.t_bp, g.t_off, g.t_str, g.t_pidx, g.d_bp, g.d_off, g.d_str,
-                                  g.d_pidx, np.full(int(m.dims[0]), np.nan), np.zeros(int(m.dims[4])),
-                                  *out.values())
+                                  m.s_corr, m.amb_col, m.amb_p, m.amb_k, g.t_bp, g.t_off, g.t_str,
+                                  g.t_pidx, g.d_bp, g.d_off, g.d_str, g.d_pidx, np.full(int(m.dims[0]), np.nan),
+                                  np.zeros(int(m.dims[4])), *out.values())
     for o, v in out.items():
         np.testing.assert_allclose(v, ref[o], rtol=1e-10, atol=1e-10 * np.abs(ref[o]).max(), err_msg=o)
     nx, nu, ny, nz, nq = (int(d) for d in m.dims[:5])

@@ -25,6 +25,7 @@ from scipy.linalg import expm
 from scipy.optimize import minimize
 
 from linearize import validate as V
+from linearize import plant as proto
 from linearize.build import SerialExecutor, build, process_pool
 from linearize.spec import BuildSpec
 from linearize.tuners import (envelope_mse, envelope_mses, fd_gradient, optimal_tuners, select_subset,
@@ -167,7 +168,7 @@ def test_hot_day_log_gives_the_runtime_the_plants_corrected_point(demo):
     h = db.tuner["h_ref"]
     got = {}
     for dT in (0.0, 15.0, -15.0):
-        env = V.day_environment(plant, p, dT)
+        env = proto.day_environment(plant, p, dT)
         assert env[2] == dT
         t = plant.trim(p, h, env)
         log = V.log_of(plant, db, p, env, *(np.asarray(t[k])[None, :] for k in "xuyz"))
@@ -196,9 +197,9 @@ def test_hot_and_cold_day_trim_tables_within_tolerance(demo, dT):
 
 
 def test_days_need_an_ambient_temperature_offset():
-    with pytest.raises(V.ValidateError, match="no ambient temperature offset"):
-        V.day_environment(LinearPlant(), [0.0, 1.0], 15.0)
-    np.testing.assert_array_equal(V.day_environment(LinearPlant(), [1.0, 1.0], 0.0), [1.0])
+    with pytest.raises(proto.PlantProtocolError, match="no ambient temperature offset"):
+        proto.day_environment(LinearPlant(), [0.0, 1.0], 15.0)
+    np.testing.assert_array_equal(proto.day_environment(LinearPlant(), [1.0, 1.0], 0.0), [1.0])
 
 
 # ---- 4. the command on the shipped database -----------------------------------------------------

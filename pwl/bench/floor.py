@@ -2,7 +2,7 @@
 
 :func:`make_floor` compiles a loop that computes the same steady-gain estimates as :func:`pwl.runtime.filter_loop` on a
 log with every sample present (parameter correction, one search per grid, shared corner
-weights, trim-shift adjustment, time and measurement update, outputs in physical units), with
+weights, the trims on the day's ambient, trim-shift adjustment, time and measurement update, outputs in physical units), with
 plain two-dimensional arrays, the database's sizes as compile-time constants, and no
 missing-value holds, flags, sensor checks, bias tables, gain choices or health pass. ``pwl bench
 run`` reports the runtime's time per step as a ratio to it: what the robustness and the
@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ..airdata import ambient_offset
 from ..grid import locate
 from ..interp import corner_weights, interp_rows
 from ..runtime import block_layout, correction_factors
@@ -32,13 +33,14 @@ def make_floor(dims, ns: int):
     cy, cz, cs = nx + nu, nx + nu + ny, nx + nu + ny + nz
 
     @njit(nogil=True, fastmath={"reassoc", "contract"})   # as the kernel
-    def floor_loop(U, Y, S, TH, DE, trim_tab, dyn_tab, ex, cls, s_scale, s_corr, t_bp, t_off,
-                   t_str, t_pidx, d_bp, d_off, d_str, d_pidx, x0, q0, x_hat, q_hat, y_hat, residual,
-                   z_hat):
+    def floor_loop(U, Y, S, TH, DE, trim_tab, dyn_tab, ex, cls, s_scale, s_corr, amb_col, amb_p, amb_k,
+                   t_bp, t_off, t_str, t_pidx, d_bp, d_off, d_str, d_pidx, x0, q0, x_hat, q_hat, y_hat,
+                   residual, z_hat):
         """Steady-gain estimates of n complete samples (see the module docstring); the arrays
         are the packed model's (:class:`pwl.runtime.Model`, :class:`pwl.runtime.Grids`), the
         outputs (n, k) physical units. x0 (nx,) corrected absolute state, NaN: start at trim;
         q0 (nq,) tuners."""
+        nt = nx + nu + ny + nz
         fac = np.ones(ex.shape[0])
         p = np.empty(S.shape[1])
         pt, pd = np.empty(t_pidx.shape[0]), np.empty(d_pidx.shape[0])
@@ -68,6 +70,10 @@ def make_floor(dims, ns: int):
             locate(t_bp, t_off, pt, False, t_idx, t_frac)
             locate(d_bp, d_off, pd, False, d_idx, d_frac)
             interp_rows(trim_tab, t_w, t_r, corner_weights(t_idx, t_frac, t_str, t_w, t_r), tw)
+            if amb_col >= 0:                          # the trims on this day
+                dT = min(max(ambient_offset(TH[k] * amb_k[0], p[amb_p[0]], p[amb_p[1]]), -amb_k[1]), amb_k[1])
+                for j in range(nt):
+                    tw[j] += dT * (tw[amb_col + j] + dT * tw[amb_col + nt + j])
             interp_rows(dyn_tab, d_w, d_r, corner_weights(d_idx, d_frac, d_str, d_w, d_r), dw)
             if xa[0] != xa[0]:
                 xa[:] = tw[:nx]

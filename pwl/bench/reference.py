@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..database import OUT_NONE, GainDatabase
+from ..airdata import ambient_offset
+from ..database import AMBIENT_REACH, OUT_NONE, GainDatabase
 from ..runtime import NOISY_CHANGES
 
 
@@ -72,6 +73,7 @@ class ReferenceFilter:
             return RegularGridInterpolator([a.values for a in grid.axes], values, method="linear",
                                            bounds_error=False, fill_value=None)
         self.trim = {k: rgi(db.trim_grid, db.trim[k]) for k in "xuyz"}
+        self.ambient = None if db.ambient is None else {k: rgi(db.trim_grid, db.ambient.coef[k]) for k in "xuyz"}
         Vp = db.tuner["V_pinv"]
         nx, nq = db.n("x"), db.n("q")
         d = db.dynamics
@@ -137,6 +139,14 @@ class ReferenceFilter:
                 pt = np.clip(pt, self.tlo, self.thi)
                 pd = np.clip(pd, self.dlo, self.dhi)
             tr = {n: f(pt)[0] for n, f in self.trim.items()}
+            if self.ambient is not None:      # the trims on this day: + c1 dT + c2 dT^2
+                a = db.ambient
+                dT = float(ambient_offset(th * db.correction.T_std, p[db.names["p"].index(a.alt)],
+                                          p[db.names["p"].index(a.mach)]))
+                dT = float(np.clip(dT, -AMBIENT_REACH * a.span, AMBIENT_REACH * a.span))
+                for n, f in self.ambient.items():
+                    c = f(pt)[0]
+                    tr[n] = tr[n] + dT * c[0] + dT * dT * c[1]
             M = {n: f(pd)[0] for n, f in self.mats.items()}
             if xa is None:
                 xa = tr["x"].copy()

@@ -96,6 +96,7 @@ def _floor_run(est, U, Y, S, TH, DE):
 
     def run():   # returns z_hat
         floor_loop(U, Y, S, TH, DE, m.trim_tab, m.dyn_tab, m.ex, m.cls, m.s_scale, m.s_corr,
+                   m.amb_col, m.amb_p, m.amb_k,
                    g.t_bp, g.t_off, g.t_str, g.t_pidx, g.d_bp, g.d_off, g.d_str, g.d_pidx,
                    np.full(nx, np.nan), np.zeros(nq), out["x_hat"], out["q_hat"], out["y_hat"],
                    out["residual"], out["z_hat"])

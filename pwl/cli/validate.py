@@ -243,7 +243,8 @@ def transient_checks(args, db, plant, names, alts):
 
 
 def run(args) -> int:
-    from linearize.validate import ambient_offset_index, outputs, plant_of, step_point
+    from linearize.plant import ambient_offset_index
+    from linearize.validate import outputs, plant_of, step_point
     from pwl.database import GainDatabase
 
     check_output(args.plot)

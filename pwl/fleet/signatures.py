@@ -71,7 +71,6 @@ class Signatures:
         self.dev_y = [c for c in names["y"] if c not in self.sched_y]
         self.channels = self.dev_y + list(names["u"])
         self.columns = list(names["h"]) + [f"sensor:{c}" for c in list(names["y"]) + list(names["u"])]
-        self.t_axes = [names["p"].index(a) for a in db.trim_grid.names]
         self.d_axes = [names["p"].index(a) for a in db.dyn_grid.names]
 
     def theta_delta(self, mean: dict) -> tuple[float, float]:
@@ -87,8 +86,8 @@ class Signatures:
         th, de = self.theta_delta(mean)
         S_raw = np.array([[mean[c] for c, _, _ in db.schedule]])
         p = db.operating_point(S_raw, th, de)[0]
-        pt, pd = p[self.t_axes][None], p[self.d_axes][None]
-        trim = {k: interpolate(db.trim_grid, db.trim[k], pt)[0] for k in "uy"}
+        pd = p[self.d_axes][None]
+        trim = {k: v[0] for k, v in db.trims_at(p[None], th).items()}    # on this day (db.ambient)
         mat = {k: interpolate(db.dyn_grid, db.dynamics[k], pd)[0] for k in "ABCDLM"}
         iy = [nm["y"].index(c) for c in self.sched_y]
         # the square steady-state system of the module docstring
