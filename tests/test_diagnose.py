@@ -569,17 +569,20 @@ def test_a_fault_at_the_second_or_third_flight_is_a_step_with_its_onset(onset):
 
 
 # ---- an engine off its fleet from its first flight ------------------------------------------------
-def level_fleet(n_engines=20, n=12, sd=1e-3, seed=6, off=None):
+def level_fleet(n_engines=20, n=12, sd=1e-3, seed=6, off=None, calib_sd=2e-3, cal_off=None):
     """Engines whose health parameters (COLUMNS[:4]) start at levels drawn N(0, 3e-3) and wear
-    U(-5e-4, 0) per flight, each sensor channel calibrated N(0, 2e-3) off; ``off`` (engine,
-    column, level) moves one engine's starting health."""
+    U(-5e-4, 0) per flight, each sensor channel calibrated N(0, calib_sd) off; ``off`` (engine,
+    column, level) moves one engine's starting health, ``cal_off`` (engine, channel, offset) one
+    engine's calibration."""
     rng = np.random.default_rng(seed)
     S = synthetic_signatures()
     levels = rng.normal(0.0, 3e-3, (n_engines, 4))
     rates = rng.uniform(-5e-4, 0.0, (n_engines, 4))
-    calib = rng.normal(0.0, 2e-3, (n_engines, 6))
+    calib = rng.normal(0.0, calib_sd, (n_engines, 6))
     if off is not None:
         levels[off[0], off[1]] += off[2]
+    if cal_off is not None:
+        calib[cal_off[0], cal_off[1]] += cal_off[2]
     t = np.arange(n, dtype=float)
     out = [series(S[:, :4] @ levels[e] + t[:, None] * (S[:, :4] @ rates[e]) + calib[e]
                   + rng.normal(0, sd, (n, 6)), S, engine=f"E{e:02d}") for e in range(n_engines)]
@@ -636,6 +639,28 @@ def test_an_engine_off_its_fleet_from_the_first_flight_is_a_level_fault():
         excess = levels[3, 2] - ref.median[2]
         assert mine[-1].magnitude == pytest.approx(excess, abs=3 * mine[-1].magnitude_std + 1e-3)
         assert not any(r.detected for r in diagnose_engine(fleet[3], Sigma, cfg, wear))
+
+
+def test_a_level_is_judged_against_at_least_twice_the_flight_to_flight_scatter():
+    """Engines calibrated alike (spread 1e-4, a tenth of the flight-to-flight scatter sd 1e-3):
+    the level reference's spread of what health does not explain is floored at level_floor x sd
+    (2e-3: engines are compared on baselines flown on other days, bleeds and loads). The price,
+    measured here: one engine whose channel c0 reads 2.5e-2 off the others' is a level of that
+    sensor without the floor and not with it; 4e-2 off is found with it too, on every row, and no
+    other engine alarms."""
+    from dataclasses import replace
+    from pwl.fleet.diagnose import level_reference, wear_reference
+    cfg = DiagnosisConfig()
+    for offset, floor, found in ((2.5e-2, 0.0, True), (2.5e-2, 2.0, False), (4e-2, 2.0, True)):
+        c = replace(cfg, level_floor=floor)
+        fleet, _, _, Sigma = level_fleet(calib_sd=1e-4, cal_off=(5, 0, offset))
+        ref, wear = level_reference(fleet, Sigma, c), wear_reference(fleet, Sigma, c)
+        assert np.all(ref.rest >= floor * 1e-3 * (1 - 1e-12))
+        rows = {es.engine: diagnose_engine(es, Sigma, c, wear, ref) for es in fleet}
+        mine = rows["E05"][c.n_base:]
+        assert all(bool(r.detected) == found for r in mine), (offset, floor, mine[0])
+        assert all(r.kind == "level" and r.cls == "sensor:A" for r in mine if found), mine[0]
+        assert sum(r.detected for e, rs in rows.items() if e != "E05" for r in rs) == 0
 
 
 def test_a_sensor_trend_from_the_first_flight_is_not_wear():

@@ -12,6 +12,7 @@ ambient and profile, sensor noise), faults from flight 5 on:
 - ESN004 T48 reading +15 K;
 - ESN005, ESN006 no fault.
 """
+import copy
 import csv
 import json
 import math
@@ -24,7 +25,7 @@ from models import fleet
 from models.turbofan import H_NAMES, Turbofan
 from pwl.cli import main
 from pwl.database import GainDatabase
-from pwl.fleet.diagnose import diagnose_fleet, read_flight
+from pwl.fleet.diagnose import diagnose_fleet, prepare, read_flight
 from pwl.estimator import Estimator
 from pwl.logs import Log, write_log
 from pwl.fleet.trending import engine_trend, health_summary, line
@@ -255,3 +256,25 @@ def test_trend_against_its_fleet_equals_the_fleet_diagnosis(scenario, capsys):
     res = os.path.join(scenario["root"], "results")
     assert main(["trend", os.path.join(res, "ESN004"), "--fleet", res]) == 1
     assert "FAULT: sensor:T48" in capsys.readouterr().out
+
+
+def test_results_of_another_database_are_named(scenario, tmp_path):
+    """Results computed with one database and diagnosed with another (the same path rebuilt, or
+    another file) are named in a warning with both digests; with their own database, none."""
+    import warnings
+
+    from pwl.errors import PwlWarning
+    records = scenario["records"]
+    db = GainDatabase.open(DB)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", PwlWarning)
+        prepare(records, db)
+    other = copy.copy(db)
+    other.attrs = dict(db.attrs, note="rebuilt")
+    path = str(tmp_path / "rebuilt.h5")
+    other.save(path)
+    rebuilt = GainDatabase.open(path)
+    with pytest.warns(PwlWarning, match=rf"{len(records)} of {len(records)} results files were computed with "
+                                        rf"another database than .*rebuilt\.h5 \(sha256 {db.digest[:12]}\.\.\., "
+                                        rf"not {rebuilt.digest[:12]}"):
+        prepare(records, rebuilt)

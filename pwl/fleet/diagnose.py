@@ -101,7 +101,9 @@ class DiagnosisConfig:
     changes of two causes (two components, a component and a sensor), at an extra cost ``pair_cost`` (a combined fault is rarer than a single
     one, and must explain more than a large single fault's nonlinearity); wear: the engine's own
     wear line is a nuisance of the step tests (normal wear is not a fault); rollout: a change of
-    the whole fleet may be rolled out over this many consecutive flights (:func:`common_steps`)."""
+    the whole fleet may be rolled out over this many consecutive flights (:func:`common_steps`);
+    level_floor: the engine-to-engine spread of what health does not explain in a baseline level is
+    taken as at least this many times each channel's flight-to-flight scatter (:func:`level_reference`)."""
 
     alpha: float = 1e-3
     kappa: float = 6.0
@@ -117,6 +119,7 @@ class DiagnosisConfig:
     pair_cost: float = 10.0
     wear: bool = True
     rollout: int = 4
+    level_floor: float = 2.0
 
 
 @dataclass
@@ -597,6 +600,8 @@ def _fleet_norm(series: list[EngineSeries], Sigma: np.ndarray, cfg: "DiagnosisCo
         warnings.simplefilter("ignore", RuntimeWarning)      # a channel no engine of the fleet has
         left = robust(np.array(rest))[1]
     left = np.where(np.isfinite(left), left, np.nanmax(left) if np.isfinite(left).any() else 0.0)
+    if leverage:
+        left = np.maximum(left, cfg.level_floor * np.sqrt(np.diag(Sigma)))
     return FleetNorm(cols, [series[0].columns[j] for j in cols], med, spread, len(vals), left)
 
 
@@ -809,7 +814,12 @@ def level_reference(series: list[EngineSeries], Sigma: np.ndarray,
     against it, and the residuals alone (10 health parameters fitted on 16 channels) made it too
     small: with sensors in the level test, 6 of 792 engines of synthetic fleets with normal
     calibration scatter read a false sensor level (the wear's is left as it was: scaled, it lost
-    an HPC wear of 0.05 %/flight on probe fleet C)."""
+    an HPC wear of 0.05 %/flight on probe fleet C). It is also at least ``cfg.level_floor`` times
+    each channel's flight-to-flight scatter: engines are compared on baselines flown on other days,
+    aircraft, bleeds and loads, which the trims do not hold; with the trims on the day's ambient
+    (the database's ambient terms) the scatter of Wf and T48 fell 4-7x and a fleet whose baselines
+    were all flown with anti-ice on read them as sensor calibration offsets (probe fleet WINTER:
+    77 false 'level' rows on 9 of 12 engines; none with the floor, 3 other false alarms as before)."""
     return _fleet_norm(series, Sigma, cfg, lambda D, t, engine, Wt: D[: cfg.n_base + 1].mean(axis=0), leverage=True)
 
 
@@ -1805,7 +1815,9 @@ def group_engines(records: list[FlightRecord]) -> dict[str, list[FlightRecord]]:
 
 
 def prepare(records: list[FlightRecord], db: GainDatabase) -> tuple[Signatures, np.ndarray]:
-    """Signatures of the database and the operating regimes of ``records`` (sets their windows)."""
+    """Signatures of the database and the operating regimes of ``records`` (sets their windows);
+    a :class:`PwlWarning` when some results were computed with another database (their recorded
+    digest differs from ``db``'s)."""
     if not records:
         raise DiagnosisError("no flights to diagnose")
     sig = Signatures(db)
@@ -1813,6 +1825,14 @@ def prepare(records: list[FlightRecord], db: GainDatabase) -> tuple[Signatures, 
         if r.snapshot.p_names != list(db.names["p"]) or not set(sig.channels) <= set(r.snapshot.channels):
             raise DiagnosisError(f"{r.source}: its snapshots ({r.snapshot.p_names}, {r.snapshot.channels}) "
                                  f"do not match the database {db.path}")
+    other = [r for r in records if r.database_digest and db.digest and r.database_digest != db.digest]
+    if other:
+        digests = sorted({r.database_digest[:12] for r in other})
+        warnings.warn(PwlWarning(
+            f"{len(other)} of {len(records)} results files were computed with another database than "
+            f"{db.path} (sha256 {', '.join(d + '...' for d in digests)}, not {db.digest[:12]}...; rebuilt "
+            f"since, or another one?), e.g. {other[0].source}: their deviations are measured from this "
+            "one's trims, their filter health is the other's (run them again to match)"), stacklevel=2)
     centers = assign_regimes(records, db.p_spans())
     if not len(centers):
         raise DiagnosisError(f"no steady operating regime common to the flights ({len(records)} flights, "
