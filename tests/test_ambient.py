@@ -208,3 +208,55 @@ def test_spec_ambient_span():
     with pytest.raises(SpecError, match="ambient_span = -5"):
         BuildSpec.parse(SPEC.format(span="ambient_span = -5"))
     assert BuildSpec.parse(SPEC.format(span="")).ambient_span == 30.0
+
+
+def test_health_estimates_of_a_flight_do_not_follow_the_day(tmp_path):
+    """The shipped database on simulated flights of one engine (HPT efficiency -1 %) on days 30 K
+    below, at and above ISA: the filter's health estimates over the settled flight are the same
+    on every day within 0.05 pt (measured 0.01); without the ambient terms the HPT loss read
+    -1.80 / -0.79 / +0.10 % (the hot day hid it): more than 0.5 pt apart."""
+    from pwl.cli import main
+    from pwl.demo_data import demo_paths
+    from pwl.logs import read_log
+
+    db = GainDatabase.open(demo_paths()[0])
+    bare = copy.copy(db)
+    bare.ambient = None
+    hpt = db.names["h"].index("hpt_eff")
+    est = {}
+    for dT in (-30, 0, 30):
+        path = str(tmp_path / f"f{dT}.h5")
+        assert main(["simulate", "-o", path, "--dtamb", str(dT), "--health", "hpt_eff=-0.01", "--seed", "3",
+                     "--durations", "climb=200,cruise=150,descent=60"]) == 0
+        log = read_log(path)
+        for label, d in (("ambient", db), ("bare", bare)):
+            h = Estimator(d).run(log).outputs["h_hat"]
+            est.setdefault(label, []).append(np.median(h[h.shape[0] // 3:], axis=0))
+    amb, bare_h = np.array(est["ambient"]), np.array(est["bare"])
+    assert np.ptp(amb, axis=0).max() < 5e-4, np.ptp(amb, axis=0)
+    assert np.ptp(bare_h[:, hpt]) > 5e-3, bare_h[:, hpt]
+    assert amb[1, hpt] < -0.005      # the loss is seen on every day
+
+
+def test_no_ambient_terms_where_the_runtime_cannot_find_the_day():
+    """A plant without an ambient offset in its environment (the linear example) gets none,
+    silently; a plant whose inlet temperature does not give its day back by the runtime's formula
+    (here 1 % hotter than the ram rise says) gets none, with a log line saying why; a zero span
+    asks for none."""
+    from linearize.build import ambient_span
+    from models.linear import LinearPlant
+
+    spec = BuildSpec.parse(SPEC.format(span=""))
+    said = []
+    assert ambient_span(LinearPlant(), spec, spec.trim_grid, said.append) == 0.0 and not said
+    assert ambient_span(Turbofan(), spec, spec.trim_grid, said.append) == 30.0 and not said
+
+    class WarmInlet(Turbofan):
+        def theta_delta(self, env):
+            th, de = super().theta_delta(env)
+            return 1.01 * th, de
+
+    assert ambient_span(WarmInlet(), spec, spec.trim_grid, said.append) == 0.0
+    assert len(said) == 1 and "no hot/cold-day trims" in said[0] and "runtime's formula" in said[0]
+    off = BuildSpec.parse(SPEC.format(span="ambient_span = 0"))
+    assert ambient_span(Turbofan(), off, off.trim_grid, said.append) == 0.0

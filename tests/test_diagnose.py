@@ -824,14 +824,78 @@ def test_a_declared_new_baseline_is_not_a_fault_and_a_later_fault_is_found_from_
 def test_new_baseline_options_are_read_and_wrong_ones_named():
     """--new-baseline ENGINE:FLIGHT (pwl fleet diagnose, pwl trend): engine -> flight numbers; an
     item without a flight number, or an engine the results do not have, is a usage error naming it."""
-    from pwl.cli.fleet import new_baselines
+    from pwl.cli.fleet import engine_flights
     from pwl.errors import UsageError
     recs = [FlightRecord(e, ("", 0, []), "f", "f", None) for e in ("ESN004", "ESN005")]
-    assert new_baselines(["ESN004:8", "ESN005:3", "ESN004:12"], recs) == {"ESN004": [8, 12], "ESN005": [3]}
-    assert new_baselines([], recs) == {}
+    assert engine_flights(["ESN004:8", "ESN005:3", "ESN004:12"], recs) == {"ESN004": [8, 12], "ESN005": [3]}
+    assert engine_flights([], recs) == {}
     with pytest.raises(UsageError, match="'ESN004': expected ENGINE:FLIGHT"):
-        new_baselines(["ESN004"], recs)
+        engine_flights(["ESN004"], recs)
     with pytest.raises(UsageError, match="'ESN004:x'"):
-        new_baselines(["ESN004:x"], recs)
+        engine_flights(["ESN004:x"], recs)
     with pytest.raises(UsageError, match="do not have: ESN009"):
-        new_baselines(["ESN009:2"], recs)
+        engine_flights(["ESN009:2"], recs)
+    with pytest.raises(UsageError, match="--exclude 'ESN004:x'"):
+        engine_flights(["ESN004:x"], recs, "--exclude")
+
+
+def test_exclude_reads_a_csv_of_flights(tmp_path):
+    """--exclude FILE.csv: every row's engine and flight (other columns ignored), with items; a
+    file without those columns, a flight that is not a number (its line named) or a missing file
+    is a usage error."""
+    from pwl.cli.fleet import engine_flights
+    from pwl.errors import UsageError
+    recs = [FlightRecord(e, ("", 0, []), "f", "f", None) for e in ("ESN004", "ESN005")]
+    good = tmp_path / "anti_ice.csv"
+    good.write_text("engine,flight,why\nESN004,7,anti-ice\nESN005,2,bleed\nESN004,11,anti-ice\n")
+    assert engine_flights([str(good), "ESN005:9"], recs, "--exclude") == {"ESN004": [7, 11], "ESN005": [2, 9]}
+    bad = tmp_path / "bad.csv"
+    bad.write_text("engine,flight\nESN004,7\nESN004,seven\n")
+    with pytest.raises(UsageError, match=r"bad\.csv, line 3: flight 'seven'"):
+        engine_flights([str(bad)], recs, "--exclude")
+    cols = tmp_path / "cols.csv"
+    cols.write_text("serial,number\nESN004,7\n")
+    with pytest.raises(UsageError, match="needs columns engine and flight"):
+        engine_flights([str(cols)], recs, "--exclude")
+    with pytest.raises(UsageError, match="nothing.csv: cannot read it"):
+        engine_flights([str(tmp_path / "nothing.csv")], recs, "--exclude")
+
+
+def test_flights_declared_off_the_usual_configuration_are_left_out():
+    """Anti-ice or a customer bleed on for flights 4, 9, 10 and 15 of 17 (the same off-configuration
+    change each time, which the trims do not hold), a fan loss from 13: undeclared, those flights
+    alarm; declared (pwl fleet diagnose --exclude ESN:4 ...), their rows say 'excluded', no other
+    flight alarms before 13, the fan loss is found from 13 with its size, and the excluded flight
+    15 reports it as of flight 14."""
+    from pwl.fleet.diagnose import excluding, mark_excluded
+    D, S = stepped(21, 17, [("fan", [-0.02, -0.02], 13)])
+    off = S[:, :2] @ np.array([0.004, -0.006]) + np.array([0.003, 0.0, -0.002, 0.0, 0.004, 0.0])
+    D[[4, 9, 10, 15]] += off
+    cfg = DiagnosisConfig(eps=0.0, curvature=0.0)
+    Sigma = np.eye(6) * 1e-6
+    before = diagnose_engine(series(D, S), Sigma, cfg)
+    assert any(r.detected for r in before[4:13])
+    es = excluding(series(D, S), (4, 9, 10, 15))
+    rows = mark_excluded(diagnose_engine(es, Sigma, cfg), {"E": [4, 9, 10, 15]})
+    assert [r.status for r in rows if r.flight in (4, 9, 10, 15)] == ["excluded"] * 4
+    assert not any(r.detected for r in rows[:13])
+    for r in rows[13:]:
+        assert r.detected and r.cls == "fan" and r.onset == 13, r
+        assert r.magnitude == pytest.approx(-0.02, abs=0.004)
+    assert rows[15].magnitude == rows[14].magnitude and rows[15].flight == 15
+    assert "as of the flight before" in rows[15].detail
+
+
+def test_an_engine_whose_first_flights_have_no_snapshot_starts_its_baseline_after_them():
+    """Flights 0-4 without a steady snapshot (an engine's first flights all short hops or ground
+    runs, or excluded), a fan loss from 11: the baseline is flights 5-8 (testing from 8), flights
+    8-10 are 'ok' and the loss is found from 11 with its size (before, no channel was kept and it
+    failed)."""
+    D, S = stepped(23, 16, [("fan", [-0.02, -0.02], 11)])
+    D[:5] = np.nan
+    rows = diagnose_engine(series(D, S), np.eye(6) * 1e-6, DiagnosisConfig(eps=0.0, curvature=0.0))
+    assert [r.status for r in rows[:9]] == ["no steady snapshot"] * 5 + ["baseline"] * 3 + ["ok"]
+    assert not any(r.detected for r in rows[:11])
+    for r in rows[11:]:
+        assert r.detected and r.cls == "fan" and r.onset == 11, r
+        assert r.magnitude == pytest.approx(-0.02, abs=0.004)

@@ -278,3 +278,22 @@ def test_results_of_another_database_are_named(scenario, tmp_path):
                                         rf"another database than .*rebuilt\.h5 \(sha256 {db.digest[:12]}\.\.\., "
                                         rf"not {rebuilt.digest[:12]}"):
         prepare(records, rebuilt)
+
+
+def test_diagnose_and_trend_exclude_flights(scenario, tmp_path, capsys):
+    """pwl fleet diagnose / pwl trend --exclude ENGINE:FLIGHT: that flight's row says 'excluded'
+    and carries the engine's diagnosis as of the flight before; no other row is excluded."""
+    import csv as _csv
+    res = os.path.join(scenario["root"], "results")
+    engine = scenario["plan"].serial[0]
+    out = str(tmp_path / "d.csv")
+    assert main(["fleet", "diagnose", res, "-o", out, "--exclude", f"{engine}:5"]) == 0
+    rows = [r for r in _csv.DictReader(open(out)) if r["engine"] == engine]
+    by = {int(r["flight"]): r for r in rows}
+    assert by[5]["status"] == "excluded" and by[5]["detected"] == by[4]["detected"]
+    assert [r["status"] for r in rows].count("excluded") == 1
+    capsys.readouterr()
+    rc = main(["trend", os.path.join(res, engine), "--fleet", res])       # 1: its latest flight is flagged
+    assert "excluded" not in capsys.readouterr().out
+    assert main(["trend", os.path.join(res, engine), "--fleet", res, "--exclude", f"{engine}:5"]) == rc
+    assert "excluded" in capsys.readouterr().out

@@ -45,6 +45,7 @@ def add_arguments(p):
                    help="do not test changes of two causes: two components, a component and a sensor "
                         "(default: tested)")
     d.add_argument("--new-baseline", metavar="ENGINE:FLIGHT", action="append", default=[], help=NEW_BASELINE_HELP)
+    d.add_argument("--exclude", metavar="ENGINE:FLIGHT", action="append", default=[], help=EXCLUDE_HELP)
     d.set_defaults(_step=run_diagnose)
 
     c = sub.add_parser("score", help="score a diagnosis CSV against a fleet's truth.csv",
@@ -114,26 +115,57 @@ def database_of(records, given=None) -> str:
 NEW_BASELINE_HELP = ("the engine starts a new baseline at that flight number (a shop visit, a module change, "
                      "moved to another aircraft): what changed there is not a fault; repeat for more "
                      "(default: none)")
+EXCLUDE_HELP = ("leave that flight out (flown off the engine's usual configuration: anti-ice or a customer "
+                "bleed on, another generator load, a ground run); its row says 'excluded'; repeat for more, "
+                "or give a CSV file with columns engine and flight (default: none)")
 
 
-def new_baselines(items: list[str], records) -> dict[str, list[int]]:
-    """engine -> flight numbers of ``--new-baseline ENGINE:FLIGHT`` items (a UsageError naming an
-    item that is not that, or an engine the results do not have)."""
+def engine_flights(items: list[str], records, option: str = "--new-baseline") -> dict[str, list[int]]:
+    """engine -> flight numbers of ``option ENGINE:FLIGHT`` items (``--new-baseline``,
+    ``--exclude``; for ``--exclude`` an item may also be a CSV file with columns engine and flight).
+    A UsageError names an item that is not that, a CSV line without a flight number, or an engine
+    the results do not have."""
     from ..errors import UsageError
     out: dict[str, list[int]] = {}
     for item in items:
+        if option == "--exclude" and item.lower().endswith(".csv"):
+            for engine, number in _flights_csv(item):
+                out.setdefault(engine, []).append(number)
+            continue
         engine, _, flight = item.rpartition(":")
         try:
             number = int(flight)
         except ValueError:
             engine = ""
         if not engine:
-            raise UsageError(f"--new-baseline {item!r}: expected ENGINE:FLIGHT (a flight number)")
+            raise UsageError(f"{option} {item!r}: expected ENGINE:FLIGHT (a flight number)")
         out.setdefault(engine, []).append(number)
     unknown = sorted(set(out) - {r.engine for r in records})
     if unknown:
-        raise UsageError(f"--new-baseline names engines the results do not have: {', '.join(unknown)}")
+        raise UsageError(f"{option} names engines the results do not have: {', '.join(unknown)}")
     return out
+
+
+def _flights_csv(path: str) -> list[tuple[str, int]]:
+    """(engine, flight number) of every row of a CSV file with columns engine and flight (others
+    ignored); a UsageError naming the file, and the line of a flight that is not a whole number."""
+    import csv
+
+    from ..errors import UsageError
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as fh:
+            reader = csv.DictReader(fh)
+            if not {"engine", "flight"} <= set(reader.fieldnames or ()):
+                raise UsageError(f"{path}: needs columns engine and flight (has {reader.fieldnames})")
+            rows = []
+            for line, row in enumerate(reader, start=2):
+                try:
+                    rows.append((row["engine"].strip(), int(row["flight"])))
+                except (TypeError, ValueError):
+                    raise UsageError(f"{path}, line {line}: flight {row['flight']!r} is not a flight number") from None
+            return rows
+    except OSError as e:
+        raise UsageError(f"{path}: cannot read it ({e.strerror or e})") from None
 
 
 def run_diagnose(args) -> int:
@@ -171,9 +203,10 @@ def run_diagnose(args) -> int:
         cfg = replace(cfg, kappa=args.kappa)
     if args.no_pairs:
         cfg = replace(cfg, pairs=False)
-    baselines = new_baselines(args.new_baseline, records)
+    baselines = engine_flights(args.new_baseline, records)
+    excluded = engine_flights(args.exclude, records, "--exclude")
     db = GainDatabase.open(db_path)
-    rows, Sigma, channels, centers, wear = diagnose_fleet(records, db, cfg, baselines)
+    rows, Sigma, channels, centers, wear = diagnose_fleet(records, db, cfg, baselines, excluded)
     write_diagnosis(rows, args.output)
     engines = sorted({r.engine for r in rows})
     latest = {r.engine: r for r in rows}            # rows are in time order per engine

@@ -1,5 +1,5 @@
 """pwl trend RESULTS...: one engine's health over its flights, trend lines and the diagnosis."""
-from .fleet import NEW_BASELINE_HELP
+from .fleet import EXCLUDE_HELP, NEW_BASELINE_HELP
 
 HELP = ("health trends (in percent) and fault diagnosis of one engine over its flights (results files "
         "of pwl run, in any order: sorted by flight_time, then flight_index, then file name); exit "
@@ -18,6 +18,7 @@ def add_arguments(p):
     p.add_argument("--plot", help="PNG file of the health trends, needs matplotlib (default: none; "
                                   "with several engines, one file each: NAME_ENGINE.png)")
     p.add_argument("--new-baseline", metavar="ENGINE:FLIGHT", action="append", default=[], help=NEW_BASELINE_HELP)
+    p.add_argument("--exclude", metavar="ENGINE:FLIGHT", action="append", default=[], help=EXCLUDE_HELP)
 
 
 def run(args) -> int:
@@ -26,7 +27,7 @@ def run(args) -> int:
     from ..database import GainDatabase
     from ..fleet.diagnose import copies, group_engines, mixed_engines, order_notes
     from ..fleet.trending import engine_trend, plot_trend
-    from .fleet import database_of, new_baselines, read_flights, results_files
+    from .fleet import database_of, engine_flights, read_flights, results_files
     from .output import check_output, plot_or_note
 
     check_output(args.plot)
@@ -39,10 +40,11 @@ def run(args) -> int:
         print(f"pwl: warning: {line}", file=sys.stderr)
     fleet, fleet_skipped = read_flights(results_files(args.fleet)) if args.fleet else (None, [])
     engines = group_engines(records)
-    baselines = new_baselines(args.new_baseline, records)
+    baselines = engine_flights(args.new_baseline, records)
+    excluded = engine_flights(args.exclude, records, "--exclude")
     status = int(bool(skipped or fleet_skipped))   # as pwl fleet diagnose: a file it could not read is a finding
     for i, (eng, recs) in enumerate(engines.items()):
-        tr = engine_trend(recs, db, fleet=fleet, new_baselines=tuple(baselines.get(eng, ())))
+        tr = engine_trend(recs, db, fleet=fleet, new_baselines=tuple(baselines.get(eng, ())), excluded=excluded)
         print(("\n" if i else "") + tr.table())
         if args.plot:
             path = args.plot if len(engines) == 1 else args.plot.replace(".png", f"_{eng}.png")

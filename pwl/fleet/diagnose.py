@@ -69,7 +69,7 @@ import os
 import re
 import warnings
 from copy import copy
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import lru_cache, partial
 from typing import NamedTuple
 
@@ -518,6 +518,38 @@ def flight_numbers(es: EngineSeries) -> np.ndarray:
     fidx = np.array([f.index for f in es.flights], float)
     ok = fidx.size and fidx.min() >= 0 and np.all(np.diff(fidx) >= 0)
     return fidx if ok else np.arange(fidx.size, dtype=float)
+
+
+def excluding(es: EngineSeries, flights) -> EngineSeries:
+    """``es`` without the flights numbered ``flights`` (:func:`flight_numbers`): their deviations and
+    health NaN, as flights without a snapshot. Flights the user knows were flown off the engine's
+    usual configuration (anti-ice or a customer bleed on, another generator load, a ground run):
+    the trims do not hold that, and such flights read as faults (``pwl fleet diagnose --exclude``)."""
+    drop = np.isin(flight_numbers(es), np.asarray(list(flights), dtype=float))
+    if not drop.any():
+        return es
+    D, SE, H = es.D.copy(), es.SE.copy(), es.h_hat.copy()
+    D[drop], SE[drop], H[drop] = np.nan, np.nan, np.nan
+    return replace(es, D=D, SE=SE, h_hat=H)
+
+
+def mark_excluded(rows: list, excluded: dict) -> list:
+    """The rows (:class:`Decision`, each engine's in flight order) of flights the user excluded
+    (engine -> flight numbers): status ``excluded``, and the engine's diagnosis as of its flight
+    before (a fault found stays reported while such flights come)."""
+    before: dict = {}
+    for i, r in enumerate(rows):
+        if r.flight in excluded.get(r.engine, ()):
+            prev = before.get(r.engine)
+            if prev is not None:
+                keep = (r.engine, r.flight, r.label, r.source, r.missing)
+                r = rows[i] = replace(prev)
+                r.engine, r.flight, r.label, r.source, r.missing = keep
+            r.status = "excluded"
+            r.detail = "left out: declared off the usual configuration (--exclude)" + (
+                "; as of the flight before: " + r.detail if prev is not None and r.detail else "")
+        before[r.engine] = r
+    return rows
 
 
 @dataclass
@@ -1413,12 +1445,16 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
             continue
         # channels with data on this flight and on most earlier flights; flights lacking one are skipped
         upto = present[: k + 1]
+        with_data = upto[upto.any(axis=1)]        # the flights so far with a snapshot
         # ... and on most of the baseline's first flights: a sensor fitted later (or dead from
         # delivery) taken in once present on half the flights dropped every flight before it, the
         # baseline with them, and a fault found before was no longer seen (an HPC loss 'ok' from
         # flight 11 when T24 had been missing on flights 0-5)
         def usable(first):
-            return present[k] & (upto.mean(axis=0) >= 0.5) & (present[first: first + cfg.n_base + 1].mean(axis=0) >= 0.5)
+            # the baseline: its first n_base + 1 flights with a snapshot (an engine whose first
+            # flights had none, or were excluded, kept no channel and failed)
+            base = first + np.flatnonzero(present[first: k + 1].any(axis=1))[: cfg.n_base + 1]
+            return present[k] & (with_data.mean(axis=0) >= 0.5) & (present[base].mean(axis=0) >= 0.5)
         keep = usable(first)
         dec.missing = _missing(es.channels, present[k])
         rowsok = np.flatnonzero(np.all(upto[:, keep], axis=1))
@@ -1437,7 +1473,7 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
                     keep = usable(first)
                     rowsok = np.flatnonzero(np.all(upto[:, keep], axis=1))
         rowsok = rowsok[(rowsok >= first) & ~np.isin(rowsok, changed_in_flight + off_once)]
-        if rowsok.size < cfg.n_base + 1:
+        if rowsok.size < cfg.n_base + 1 or not keep.any():
             dec.status = "baseline"
             rows.append(dec)
             continue
@@ -1841,21 +1877,25 @@ def prepare(records: list[FlightRecord], db: GainDatabase) -> tuple[Signatures, 
 
 
 def diagnose_fleet(records: list[FlightRecord], db: GainDatabase,
-                   cfg: DiagnosisConfig = DiagnosisConfig(), new_baselines: dict | None = None) -> tuple:
+                   cfg: DiagnosisConfig = DiagnosisConfig(), new_baselines: dict | None = None,
+                   excluded: dict | None = None) -> tuple:
     """Every engine of ``records``; returns (decisions, Sigma, deviation channel names, regime
     centres (R, np), the fleet's normal wear (:class:`FleetNorm`, or None)). Each engine is
     judged against the fleet's scatter, normal wear and normal baseline level.
     ``new_baselines``: engine -> flight numbers where it starts a new baseline
-    (:func:`diagnose_engine`)."""
+    (:func:`diagnose_engine`); ``excluded``: engine -> flight numbers left out (:func:`excluding`;
+    their rows say ``excluded``)."""
     sig, centers = prepare(records, db)
-    series = [engine_series(v, sig, len(centers)) for v in group_engines(records).values()]
+    excluded = excluded or {}
+    series = [excluding(engine_series(v, sig, len(centers)), excluded.get(e, ()))
+              for e, v in group_engines(records).items()]
     Sigma = noise_covariance(series, cfg.floor)
     from .trending import detail_units
     wear, level = fleet_norms(series, Sigma, cfg, detail_units(db))
     rows = []
     for es in series:
         rows += diagnose_engine(es, Sigma, cfg, wear, level, tuple((new_baselines or {}).get(es.engine, ())))
-    return rows, Sigma, series[0].channels, centers, wear
+    return mark_excluded(rows, excluded), Sigma, series[0].channels, centers, wear
 
 
 def write_diagnosis(rows: list[Decision], path) -> None:

@@ -22,8 +22,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..database import GainDatabase
-from .diagnose import (DiagnosisConfig, Decision, FlightRecord, diagnose_engine, engine_series, fleet_norms,
-                       group_engines, noise_covariance, prepare, recoveries)
+from .diagnose import (DiagnosisConfig, Decision, FlightRecord, diagnose_engine, engine_series, excluding,
+                       fleet_norms, group_engines, mark_excluded, noise_covariance, prepare, recoveries)
 
 
 @dataclass
@@ -184,7 +184,7 @@ def health_notes(es) -> list[str]:
 
 def engine_trend(records: list[FlightRecord], db: GainDatabase,
                  cfg: DiagnosisConfig = DiagnosisConfig(), fleet: list[FlightRecord] | None = None,
-                 new_baselines: tuple = ()) -> EngineTrend:
+                 new_baselines: tuple = (), excluded: dict | None = None) -> EngineTrend:
     """Trend and diagnosis of one engine's flights (any order: they are sorted by time).
 
     ``fleet``: the flights of the engine's fleet (may include its own). Then the engine is judged
@@ -192,19 +192,24 @@ def engine_trend(records: list[FlightRecord], db: GainDatabase,
     normal wear and baseline level (:func:`pwl.fleet.diagnose.wear_reference`,
     :func:`~pwl.fleet.diagnose.level_reference`). Alone, against its own scatter (which
     holds an intermittent fault's toggles) and ``min_rate`` for wear. ``new_baselines``: flight
-    numbers where the engine starts a new baseline (:func:`~pwl.fleet.diagnose.diagnose_engine`)."""
+    numbers where the engine starts a new baseline (:func:`~pwl.fleet.diagnose.diagnose_engine`);
+    ``excluded``: engine -> flight numbers left out, of this engine and its fleet's
+    (:func:`~pwl.fleet.diagnose.excluding`)."""
     mine = {os.path.realpath(r.source) for r in records}     # however the paths were spelt
     others = [r for r in (fleet or []) if os.path.realpath(r.source) not in mine]
     sig, centers = prepare(records + others, db)
+    excluded = excluded or {}
     es = engine_series(records, sig, len(centers))
+    es = excluding(es, excluded.get(es.engine, ()))
     wear = level = None
     if others:
-        series = [es] + [engine_series(v, sig, len(centers)) for v in group_engines(others).values()]
+        series = [es] + [excluding(engine_series(v, sig, len(centers)), excluded.get(e, ()))
+                         for e, v in group_engines(others).items()]
         Sigma = noise_covariance(series, cfg.floor)
         wear, level = fleet_norms(series, Sigma, cfg, detail_units(db))
     else:
         Sigma = noise_covariance([es], cfg.floor)
-    dec = diagnose_engine(es, Sigma, cfg, wear, level, new_baselines)
+    dec = mark_excluded(diagnose_engine(es, Sigma, cfg, wear, level, new_baselines), excluded)
     H = es.h_hat
     ok = np.all(np.isfinite(H), axis=1)
     x = np.flatnonzero(ok).astype(float)
