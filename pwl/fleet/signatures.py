@@ -17,7 +17,9 @@ inputs the pair is square and gives dx, du. The relative deviations of the other
 so d = S [h; b] with one signature column per health parameter and per bias. A sensed output's
 bias is an offset in its raw unit (a thermocouple reading 15 K high, at any power); an input's is
 relative (a fuel-flow meter reading 2 % high). Biases of non-scheduling channels move only their
-own deviation; a scheduling-sensor bias moves the operating point and so every other channel.
+own deviation; a scheduling-sensor bias moves the operating point and so every other channel, and
+so does a bias of the inlet sensors that theta and delta come from (T2, P2: the correction, the
+corrected operating point and the day's trims move), whose columns are taken numerically.
 docs/diagnostics.md derives it; tests compare S with trims of the nonlinear model.
 """
 from __future__ import annotations
@@ -42,8 +44,9 @@ class Deviation:
     channels (m,) names; d (m,) relative deviations (NaN where the channel has no data); se (m,)
     standard errors of d from the snapshot's sample scatter; S (m, ncol) signature columns named
     ``columns`` (health parameters as fractions, then ``sensor:<channel>``: sensed outputs per raw
-    unit of offset, inputs per relative bias); level (ncol,): the trim value of each channel in raw
-    units at this snapshot (NaN for health columns); p (np,) operating point."""
+    unit of offset, inputs per relative bias, then the inlet sensors (theta and delta channels) per
+    raw unit of offset); level (ncol,): the trim value of each channel in raw units at this
+    snapshot, the inlet sensors' reading (NaN for health columns); p (np,) operating point."""
 
     channels: list[str]
     d: np.ndarray
@@ -70,7 +73,11 @@ class Signatures:
                 f"{[c for c, _, _ in db.schedule]} with inputs {names['u']}")
         self.dev_y = [c for c in names["y"] if c not in self.sched_y]
         self.channels = self.dev_y + list(names["u"])
-        self.columns = list(names["h"]) + [f"sensor:{c}" for c in list(names["y"]) + list(names["u"])]
+        corr = db.correction
+        # the inlet's temperature and pressure sensors (theta, delta) when no input or output is one
+        self.inlet = [c for c in ((corr.theta_channel, corr.delta_channel) if corr else ())
+                      if c not in names["y"] and c not in names["u"]]
+        self.columns = list(names["h"]) + [f"sensor:{c}" for c in list(names["y"]) + list(names["u"]) + self.inlet]
         self.d_axes = [names["p"].index(a) for a in db.dyn_grid.names]
 
     def theta_delta(self, mean: dict) -> tuple[float, float]:
@@ -79,15 +86,31 @@ class Signatures:
             return 1.0, 1.0
         return mean[c.theta_channel] / c.T_std, mean[c.delta_channel] / c.P_std
 
+    def _trims(self, mean: dict):
+        """(theta, delta, operating point p (np,), trims u, y on this day) of raw channel means."""
+        db = self.db
+        th, de = self.theta_delta(mean)
+        p = db.operating_point(np.array([[mean[c] for c, _, _ in db.schedule]]), th, de)[0]
+        trim = {k: v[0] for k, v in db.trims_at(p[None], th).items()}    # on this day (db.ambient)
+        return th, de, p, trim
+
+    def _relative(self, mean: dict, th, de, trim) -> tuple[np.ndarray, np.ndarray]:
+        """(d, the raw-to-relative factor per channel): relative deviations of ``self.channels``."""
+        nm, ydev = self.db.names, [self.db.names["y"].index(c) for c in self.dev_y]
+        fac = np.r_[self.db.correction_factor(nm["y"], th, de)[0][ydev], self.db.correction_factor(nm["u"], th, de)[0]]
+        ref = np.r_[trim["y"][ydev], trim["u"]]
+        return np.array([mean[c] for c in self.channels]) / fac / ref - 1.0, fac * ref
+
     def at(self, mean: dict, se: dict) -> Deviation:
-        """Deviation and signatures of one snapshot: ``mean``/``se`` map raw channel -> value."""
+        """Deviation and signatures of one snapshot: ``mean``/``se`` map raw channel -> value.
+
+        An inlet sensor's bias (theta or delta channel: T2, P2) moves the operating point, the
+        correction and the day the trims are taken on: its column is the central difference of the
+        deviations over +-0.1 % of its reading, per raw unit."""
         db, nm = self.db, self.db.names
         nx, nu, nh = db.n("x"), db.n("u"), db.n("h")
-        th, de = self.theta_delta(mean)
-        S_raw = np.array([[mean[c] for c, _, _ in db.schedule]])
-        p = db.operating_point(S_raw, th, de)[0]
+        th, de, p, trim = self._trims(mean)
         pd = p[self.d_axes][None]
-        trim = {k: v[0] for k, v in db.trims_at(p[None], th).items()}    # on this day (db.ambient)
         mat = {k: interpolate(db.dyn_grid, db.dynamics[k], pd)[0] for k in "ABCDLM"}
         iy = [nm["y"].index(c) for c in self.sched_y]
         # the square steady-state system of the module docstring
@@ -110,13 +133,21 @@ class Signatures:
         S = np.vstack([dy[ydev] / trim["y"][ydev, None], du / trim["u"][:, None]])
         for r, c in enumerate(self.channels):                    # own biases: unit columns
             S[r, nh + (nm["y"].index(c) if c in nm["y"] else db.n("y") + nm["u"].index(c))] += 1.0
+        d, scale = self._relative(mean, th, de, trim)
+        s = np.array([se.get(c, np.nan) for c in self.channels]) / scale
         fy = db.correction_factor(nm["y"], th, de)[0]
         fu = db.correction_factor(nm["u"], th, de)[0]
-        meas = np.array([mean[c] for c in self.channels])
-        fac = np.r_[fy[ydev], fu]
-        ref = np.r_[trim["y"][ydev], trim["u"]]
-        d = meas / fac / ref - 1.0
-        s = np.array([se.get(c, np.nan) for c in self.channels]) / fac / ref
-        level = np.r_[np.full(nh, np.nan), trim["y"] * fy, trim["u"] * fu]
+        level = np.r_[np.full(nh, np.nan), trim["y"] * fy, trim["u"] * fu, [mean[c] for c in self.inlet]]
         S[:, nh:nh + db.n("y")] /= level[nh:nh + db.n("y")]     # sensed outputs: offsets in raw units
+        cols = []
+        for c in self.inlet:
+            h = 1e-3 * abs(mean[c])
+            side = []
+            for sign in (1.0, -1.0):
+                moved = dict(mean, **{c: mean[c] + sign * h})
+                th_m, de_m, _, trim_m = self._trims(moved)
+                side.append(self._relative(moved, th_m, de_m, trim_m)[0])
+            cols.append((side[0] - side[1]) / (2.0 * h))
+        if cols:
+            S = np.hstack([S, np.column_stack(cols)])
         return Deviation(list(self.channels), d, s, S, list(self.columns), level, p)

@@ -1,0 +1,52 @@
+"""Biases of the inlet sensors that theta and delta come from (T2, P2): their signature columns
+(pwl.fleet.signatures, taken numerically) against the deviations of the nonlinear plant's own
+trims read through a biased sensor, and their diagnosis."""
+import numpy as np
+import pytest
+
+from linearize import plant as proto
+from models.turbofan import Turbofan
+from pwl.database import GainDatabase
+from pwl.demo_data import demo_paths
+from pwl.fleet.signatures import Signatures
+
+REGIMES = (((0.0, 0.0, 80.0), -5.0), ((9000.0, 0.78, 90.0), 10.0))   # ground idle-ish, cruise; day K
+
+
+def snapshot(db, plant, p, dT):
+    """Raw channel means of the plant's trim at p on a day dT K off ISA (a healthy engine)."""
+    p = np.asarray(p)
+    env = proto.day_environment(plant, p, dT)
+    t = plant.trim(p, None, env)
+    T2, P2 = plant.inlet(env)
+    return dict(zip(db.names["y"], t["y"])) | dict(zip(db.names["u"], t["u"])) | {"alt": p[0], "Mach": p[1],
+                                                                                  "T2": T2, "P2": P2}
+
+
+@pytest.mark.parametrize("channel, bias", [("T2", 3.0), ("P2", -600.0)])
+def test_an_inlet_sensor_bias_is_its_column_and_no_component(channel, bias):
+    """The deviations a biased T2 (+3 K) or P2 (-600 Pa) reading makes of a healthy engine's
+    snapshot: its column times the bias within 5 % (the bias fitted on its column within 3 %), in
+    both regimes; the best single component (two health parameters) leaves at least 10 % of the
+    two regimes' change unexplained (T2 alone: 50 %; P2 at cruise alone is close to a
+    component's, 1.5 %: the ground regime tells them apart)."""
+    db = GainDatabase.open(demo_paths()[0])
+    sig, plant = Signatures(db), Turbofan()
+    col_j = sig.columns.index(f"sensor:{channel}")
+    comps = {}
+    for j, c in enumerate(sig.columns):
+        if not c.startswith("sensor:"):
+            comps.setdefault(c.rsplit("_", 1)[0], []).append(j)
+    deltas, S = [], []
+    for p, dT in REGIMES:
+        mean = snapshot(db, plant, p, dT)
+        base = sig.at(mean, {})
+        delta = sig.at(dict(mean, **{channel: mean[channel] + bias}), {}).d - base.d
+        col = base.S[:, col_j]
+        assert col @ delta / (col @ col) == pytest.approx(bias, rel=0.03)
+        assert np.linalg.norm(delta - col * bias) < 0.05 * np.linalg.norm(delta)
+        deltas.append(delta)
+        S.append(base.S)
+    delta, S = np.concatenate(deltas), np.vstack(S)
+    left = min(np.linalg.norm(delta - S[:, js] @ np.linalg.lstsq(S[:, js], delta, rcond=None)[0]) for js in comps.values())
+    assert left > 0.1 * np.linalg.norm(delta)
