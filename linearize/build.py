@@ -168,8 +168,9 @@ def ambient_terms(plant, p, h, trim, span: float) -> dict:
     """kind -> (2, n) [c1 (per K), c2 (per K^2)] of the corrected trim's change with the day's
     ambient temperature offset dT at scheduling point ``p``: trim_c(dT) = trim_c + c1 dT + c2 dT^2
     through the plant's trims at dT = -span, 0, +span (``trim``: the standard day's as the plant
-    returned it, the others' start; each day corrected with its own theta, delta). One day failing: linear through the other
-    (c2 = 0); both: NaN (filled along the power line by the builder)."""
+    returned it, the others' start; each day corrected with its own theta, delta). One day
+    failing: linear through the other (c2 = 0); both: NaN (filled along the power line by the
+    builder)."""
     p = np.asarray(p, dtype=np.float64)
     env0 = plant.environment(p)
     fac0 = proto.correction_factors(plant, env0)

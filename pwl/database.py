@@ -289,20 +289,20 @@ class GainDatabase:
         scale = np.array([float(s) for _, _, s in self.schedule])
         return S * scale / np.where(corr, fac, 1.0)
 
-    def ambient_offset(self, p, theta) -> tuple[np.ndarray, np.ndarray]:
-        """The day's ambient offset dT (K) the trims are moved by at operating points ``p`` (n, np)
-        with inlet temperature ratio ``theta`` (n,), as the runtime computes it, and a bool (n,)
-        where it was held at +-AMBIENT_REACH * span; zeros without an ambient record."""
+    def ambient_offset(self, p, theta) -> np.ndarray:
+        """The day's ambient offset dT (n,) in K that the trims are moved by at operating points
+        ``p`` (n, np) with inlet temperature ratio ``theta`` (n,), as the runtime computes it
+        (held at +-AMBIENT_REACH * span); zeros without an ambient record."""
         p = np.atleast_2d(np.asarray(p, dtype=np.float64))
         if self.ambient is None:
-            return np.zeros(p.shape[0]), np.zeros(p.shape[0], bool)
+            return np.zeros(p.shape[0])
         from .airdata import ambient_offset
 
         a, names = self.ambient, self.names["p"]
         dT = ambient_offset(np.asarray(theta, dtype=np.float64) * self.correction.T_std,
                             p[:, names.index(a.alt)], p[:, names.index(a.mach)])
         reach = AMBIENT_REACH * a.span
-        return np.clip(dT, -reach, reach), np.abs(dT) > reach
+        return np.clip(dT, -reach, reach)
 
     def trims_at(self, p, theta=1.0) -> dict[str, np.ndarray]:
         """Trims x, u, y, z (n, n_kind), corrected units, at operating points ``p`` (n, np) on the
@@ -315,7 +315,7 @@ class GainDatabase:
         pt = p[:, [names.index(a) for a in self.trim_grid.names]]
         out = {k: interpolate(self.trim_grid, self.trim[k], pt) for k in "xuyz"}
         if self.ambient is not None:
-            dT = self.ambient_offset(p, np.broadcast_to(theta, (p.shape[0],)))[0][:, None]
+            dT = self.ambient_offset(p, np.broadcast_to(theta, (p.shape[0],)))[:, None]
             for k in "xuyz":
                 c = interpolate(self.trim_grid, self.ambient.coef[k], pt)
                 out[k] = out[k] + dT * (c[:, 0] + dT * c[:, 1])

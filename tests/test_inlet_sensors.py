@@ -48,5 +48,6 @@ def test_an_inlet_sensor_bias_is_its_column_and_no_component(channel, bias):
         deltas.append(delta)
         S.append(base.S)
     delta, S = np.concatenate(deltas), np.vstack(S)
-    left = min(np.linalg.norm(delta - S[:, js] @ np.linalg.lstsq(S[:, js], delta, rcond=None)[0]) for js in comps.values())
+    left = min(np.linalg.norm(delta - S[:, js] @ np.linalg.lstsq(S[:, js], delta, rcond=None)[0])
+               for js in comps.values())
     assert left > 0.1 * np.linalg.norm(delta)

@@ -1,9 +1,9 @@
 """The speed floor of the runtime: a minimal fused loop doing the kernel's arithmetic and nothing else.
 
-:func:`make_floor` compiles a loop that computes the same steady-gain estimates as :func:`pwl.runtime.filter_loop` on a
-log with every sample present (parameter correction, one search per grid, shared corner
-weights, the trims on the day's ambient, trim-shift adjustment, time and measurement update, outputs in physical units), with
-plain two-dimensional arrays, the database's sizes as compile-time constants, and no
+:func:`make_floor` compiles a loop that computes the same steady-gain estimates as
+:func:`pwl.runtime.filter_loop` on a log with every sample present (parameter correction, one
+search per grid, shared corner weights, the trims on the day's ambient, trim-shift adjustment,
+time and measurement update, outputs in physical units), with plain two-dimensional arrays, the database's sizes as compile-time constants, and no
 missing-value holds, flags, sensor checks, bias tables, gain choices or health pass. ``pwl bench
 run`` reports the runtime's time per step as a ratio to it: what the robustness and the
 generality (one compiled kernel for every database) cost.
