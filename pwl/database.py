@@ -89,7 +89,7 @@ class Correction:
 
 
 #: the runtime holds the day's ambient offset within this many times the span its trims were built
-#: over (quadratic beyond the span, held beyond the reach: FLAG_TRIM_OUTSIDE)
+#: over (quadratic beyond the span, held beyond the reach, named in a warning)
 AMBIENT_REACH = 2.0
 
 
@@ -289,10 +289,10 @@ class GainDatabase:
         scale = np.array([float(s) for _, _, s in self.schedule])
         return S * scale / np.where(corr, fac, 1.0)
 
-    def ambient_offset(self, p, theta) -> np.ndarray:
+    def ambient_offset(self, p, theta, hold: bool = True) -> np.ndarray:
         """The day's ambient offset dT (n,) in K that the trims are moved by at operating points
         ``p`` (n, np) with inlet temperature ratio ``theta`` (n,), as the runtime computes it
-        (held at +-AMBIENT_REACH * span); zeros without an ambient record."""
+        (held at +-AMBIENT_REACH * span unless ``hold`` is False); zeros without an ambient record."""
         p = np.atleast_2d(np.asarray(p, dtype=np.float64))
         if self.ambient is None:
             return np.zeros(p.shape[0])
@@ -302,7 +302,7 @@ class GainDatabase:
         dT = ambient_offset(np.asarray(theta, dtype=np.float64) * self.correction.T_std,
                             p[:, names.index(a.alt)], p[:, names.index(a.mach)])
         reach = AMBIENT_REACH * a.span
-        return np.clip(dT, -reach, reach)
+        return np.clip(dT, -reach, reach) if hold else dT
 
     def trims_at(self, p, theta=1.0) -> dict[str, np.ndarray]:
         """Trims x, u, y, z (n, n_kind), corrected units, at operating points ``p`` (n, np) on the

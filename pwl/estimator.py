@@ -12,7 +12,7 @@ import warnings
 import numpy as np
 
 from .airdata import LAG_SIGMAS, LAG_WARN, air_data_channels, altitude_slip, disagree, inlet_pressure, lag, lag_sums
-from .database import GainDatabase
+from .database import AMBIENT_REACH, GainDatabase
 from .grid import Axis, Grid
 from .h5io import atomic_h5
 from .logs import (Log, LogError, check_time, read_header, read_log, read_rows, resample, rows_missing, sample_interval,
@@ -527,6 +527,7 @@ class Estimator:
         self._misfit_runs = np.zeros((2, len(self.db.names["y"])))   # longest misfit run, the run going on
         na = len(self.db.trim_grid.axes)   # samples outside the trim grid; each axis's extremes (_accumulate)
         self._envelope = [0, np.full(na, np.inf), np.full(na, -np.inf)]
+        self._day = [0, np.inf, -np.inf]   # samples whose day is beyond the ambient terms' reach; extremes, K
 
     @property
     def covariance(self) -> np.ndarray | None:
@@ -841,6 +842,16 @@ class Estimator:
             warnings.warn(f"{path}: {k} of {n} samples outside the database's grid, {far}: the model there "
                           f"is {how} the grid's edge (the farther out, the less its estimates hold); a "
                           "database built over the log's envelope fixes it", PwlWarning, stacklevel=4)
+        k, cold, hot = self._day
+        if k >= max(n, 1) / 100:
+            reach = AMBIENT_REACH * self.db.ambient.span
+            worst = cold if -cold > hot else hot
+            theta = self.db.correction.theta_channel
+            warnings.warn(f"{path}: {k} of {n} samples on a day {worst:+.0f} K off the standard atmosphere (from "
+                          f"{theta!r}, altitude and Mach), beyond the +-{reach:g} K the database's hot- and "
+                          f"cold-day trims reach: held at {np.copysign(reach, worst):+g} K there. A {theta} "
+                          f"reading {'high' if worst > 0 else 'low'} (its unit?), or a day that "
+                          f"{'hot' if worst > 0 else 'cold'}?", PwlWarning, stacklevel=4)
         if self.trim_filled:
             st = self.db.trim_status
             nodes = "; ".join(", ".join(f"{a.name} {a.values[i]:g}" for a, i in zip(self.db.trim_grid.axes, idx))
@@ -1291,6 +1302,13 @@ class Estimator:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)      # an all-NaN axis
                 env[1], env[2] = np.fmin(env[1], np.nanmin(pt, axis=0)), np.fmax(env[2], np.nanmax(pt, axis=0))
+        if db.ambient is not None:
+            with np.errstate(invalid="ignore"):
+                dT = db.ambient_offset(p, th, hold=False)
+                far = np.abs(dT) > AMBIENT_REACH * db.ambient.span
+            if far.any():
+                self._day = [self._day[0] + int(far.sum()), min(self._day[1], float(np.nanmin(dT[far]))),
+                             max(self._day[2], float(np.nanmax(dT[far])))]
         outside = (res.flags & (FLAG_TRIM_OUTSIDE | FLAG_DYN_OUTSIDE | FLAG_NOT_STARTED | FLAG_AIR_DATA
                                 | FLAG_TRIM_FILLED)) != 0
         outs = {o: res.outputs[o] for o in SNAPSHOT_OUTPUTS}

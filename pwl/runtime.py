@@ -400,7 +400,7 @@ def _interpolate(io, model, grids, filt, w, k, osl, ost, cs):
     if nt >= 0 and w.tw[_u(nt)] > 1e-9:
         flags |= FLAG_TRIM_FILLED
     if model.amb_col >= 0:
-        flags |= _ambient_trims(model, w)
+        _ambient_trims(model, w)
     m = corner_weights(filt.d_idx, w.d_frac, grids.d_str, w.d_wts, w.d_rows)
     interp_rows(model.dyn_tab, w.d_wts, w.d_rows, m, w.dw)
     return flags, m, d_out
@@ -409,18 +409,15 @@ def _interpolate(io, model, grids, filt, w, k, osl, ost, cs):
 @njit(cache=True, nogil=True, inline="always")
 def _ambient_trims(model, w):
     """trim += c1 dT + c2 dT^2 in w.tw (the interpolated ambient terms, :class:`pwl.database.Ambient`),
-    dT the day's offset from ISA from theta and the operating point, held within +-amb_k[1]
-    (FLAG_TRIM_OUTSIDE beyond)."""
+    dT the day's offset from ISA from theta and the operating point, held within +-amb_k[1] (not
+    flagged: the estimate there is still the best the database has; a log that goes beyond is
+    named in a warning, :meth:`pwl.estimator.Estimator.run`)."""
     dT = ambient_offset(w.thde[0] * model.amb_k[0], w.p[model.amb_p[0]], w.p[model.amb_p[1]])
-    flags = 0
-    if not abs(dT) <= model.amb_k[1]:
-        dT = min(max(dT, -model.amb_k[1]), model.amb_k[1])
-        flags = FLAG_TRIM_OUTSIDE
+    dT = min(max(dT, -model.amb_k[1]), model.amb_k[1])
     o = model.amb_col
     nt = (w.tw.shape[0] - o) // 2
     for j in range(nt):
         w.tw[j] += dT * (w.tw[_u(o + j)] + dT * w.tw[_u(o + nt + j)])
-    return flags
 
 
 @njit(cache=True, nogil=True, inline="always")

@@ -15,7 +15,8 @@ from pwl.bench.reference import ReferenceFilter
 from pwl.database import DatabaseError, GainDatabase
 from pwl.estimator import Estimator
 from pwl.fleet.signatures import Signatures
-from pwl.runtime import FLAG_TRIM_OUTSIDE
+from pwl.logs import Log
+from pwl.errors import PwlWarning
 
 SPEC = """
 [model]
@@ -116,32 +117,37 @@ def test_kernel_equals_the_reference_filter_on_changing_days(dbs):
     ref = ReferenceFilter(amb).run(U, Y, S, TH, DE)
     for o, v in ref.items():
         np.testing.assert_allclose(res.outputs[o], v, rtol=1e-10, atol=1e-10 * np.abs(v).max(initial=1.0), err_msg=o)
-    # the days beyond the reach are held there and flagged
-    far = np.abs(dT) > 60.0
-    assert np.all(res.flags[far] & FLAG_TRIM_OUTSIDE)
 
 
-def test_far_days_are_held_at_the_reach(dbs):
-    """A theta whose day is 100 K off ISA (a T2 reading high, still plausible) predicts what 60 K
-    does, flagged."""
+def test_far_days_are_held_at_the_reach_and_named(dbs):
+    """A theta whose day is 100 K off ISA (a T2 reading high, still plausible) estimates what 60 K
+    does (the same corrected measurements), unflagged (the best the database has), and a log run
+    names it in a warning."""
     amb, _ = dbs
     plant = Turbofan()
     p = np.array([9000.0, 0.6, 85.0])
-    runs = []
+    runs, logs = [], []
     for dT in (60.0, 100.0):
         th, de = plant.theta_delta(np.array([p[0], p[1], dT]))
         n = 50
         S = np.tile([p[0], p[1], p[2] / 100 * plant.Nf_design * np.sqrt(th)], (n, 1))
-        u60 = amb.trims_at(p[None], plant.theta_delta(np.array([p[0], p[1], 60.0]))[0])["u"]
-        U = np.tile(u60 * amb.correction_factor(amb.names["u"], [th], [de]), (n, 1))   # trim at 60 K
-        Y = np.full((n, amb.n("y")), np.nan)
+        t60 = amb.trims_at(p[None], plant.theta_delta(np.array([p[0], p[1], 60.0]))[0])  # the trims at 60 K
+        U = np.tile(t60["u"] * amb.correction_factor(amb.names["u"], [th], [de]), (n, 1))
+        Y = np.tile(t60["y"] * amb.correction_factor(amb.names["y"], [th], [de]), (n, 1))
+        Y[:, amb.names["y"].index("Nf")] = S[:, 2]
         runs.append(Estimator(amb).run_arrays(U, Y, S, np.full(n, th), np.full(n, de)))
+        chans = dict(zip(amb.names["u"], U.T)) | dict(zip(amb.names["y"], Y.T)) | {
+            "alt": S[:, 0], "Mach": S[:, 1], "T2": np.full(n, th * 288.15), "P2": np.full(n, de * 101325.0)}
+        logs.append(Log(np.arange(n) * amb.dt, chans, {}))
     hold, far = runs
-    assert not (hold.flags & FLAG_TRIM_OUTSIDE).any() and (far.flags & FLAG_TRIM_OUTSIDE).all()
+    assert np.array_equal(hold.flags, far.flags)
     th60 = plant.theta_delta(np.array([p[0], p[1], 60.0]))[0]
     th100 = plant.theta_delta(np.array([p[0], p[1], 100.0]))[0]
     fy = amb.correction_factor(amb.names["y"], [th60, th100], [1.0, 1.0])
     np.testing.assert_allclose(hold.outputs["y_hat"][-1] / fy[0], far.outputs["y_hat"][-1] / fy[1], rtol=1e-12)
+    with pytest.warns(PwlWarning, match=r"50 of 50 samples on a day \+100 K off the standard atmosphere .*"
+                                        r"held at \+60 K there. A T2 reading high"):
+        Estimator(amb).run(logs[1])
 
 
 def test_steady_state_on_hot_and_cold_days_matches_the_standard_days_error(dbs):
