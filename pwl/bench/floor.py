@@ -3,10 +3,11 @@
 :func:`make_floor` compiles a loop that computes the same steady-gain estimates as
 :func:`pwl.runtime.filter_loop` on a log with every sample present (parameter correction, one
 search per grid, shared corner weights, the trims on the day's ambient, trim-shift adjustment,
-time and measurement update, outputs in physical units), with plain two-dimensional arrays, the database's sizes as compile-time constants, and no
-missing-value holds, flags, sensor checks, bias tables, gain choices or health pass. ``pwl bench
-run`` reports the runtime's time per step as a ratio to it: what the robustness and the
-generality (one compiled kernel for every database) cost.
+time and measurement update, outputs in physical units), with plain two-dimensional arrays, the
+database's sizes as compile-time constants, and no missing-value holds, flags, sensor checks,
+bias tables, gain choices or health pass. ``pwl bench run`` reports the runtime's time per step
+as a ratio to it: what the robustness and the generality (one compiled kernel for every
+database) cost.
 
 :func:`fma_peak` measures what one core does at best on this machine (a vectorised multiply-add
 loop on data in L1 cache) to put the kernel's flops per second in proportion.
