@@ -1097,8 +1097,8 @@ def augmented(db: GainDatabase):
 class PackedModel:
     """A database packed for the kernel: one contiguous row per grid node.
 
-    trim_tab: (trim nodes, nx+nu+ny+nz [+1]) = [x, u, y, z (, filled)] (filled, when the build
-    did not compute some trim: 1 on those nodes, FLAG_TRIM_FILLED); dyn_tab: (dyn nodes, block) =
+    trim_tab: (trim nodes, columns) = [x, u, y, z (, filled) (, ambient terms)] (:func:`_pack_trims`:
+    filled, when the build did not compute some trim: 1 on those nodes, FLAG_TRIM_FILLED); dyn_tab: (dyn nodes, block) =
     [A_a[:nx], B_a[:nx] row-major; C_a, D_a, F_a, G_a, K column-major] (the tuner rows of A_a
     and B_a, [0 I] and [0], are not stored: the kernel applies them), and with ``online`` also
     [Q_a, R] row-major, with p_tab (dyn nodes, na*na) the steady-state a-priori P; the rest are
@@ -1125,6 +1125,7 @@ class PackedModel:
     ko_avail: np.ndarray | None = None
     sub_tab: np.ndarray | None = None
     s_state: np.ndarray | None = None
+    filled_col: int = -1
     amb_col: int = -1
     amb_p: np.ndarray | None = None
     amb_k: np.ndarray | None = None
@@ -1145,12 +1146,7 @@ class PackedModel:
         if online and zones is not None:
             raise UsageError("online covariance and zone gains exclude each other")
         tg, dg = db.trim_grid, db.dyn_grid
-        cols = [db.trim[k].reshape(tg.size, -1) for k in "xuyz"]
-        if np.any(db.trim_status != 0):       # the filled nodes' column, only where there are some
-            cols.append((db.trim_status != 0).astype(float).reshape(tg.size, 1))
-        if db.ambient is not None:            # c1 of x..z, then c2
-            cols += [db.ambient.coef[k][..., j, :].reshape(tg.size, -1) for j in (0, 1) for k in "xuyz"]
-        trim_tab = np.ascontiguousarray(np.concatenate(cols, axis=1))
+        trim_tab, filled_col, ambient = _pack_trims(db)
         aug = augmented(db)
         if not tune:
             aug["K"] = aug["K"].copy()
@@ -1189,7 +1185,7 @@ class PackedModel:
                    db.correction.delta_channel if db.correction else None, online, p_tab,
                    z_gains, z_labels, ko_tab, ko_avail, sub_tab,
                    np.array([db.names["x"].index(c) if c in db.names["x"] else -1 for c in chans],
-                            dtype=np.int64), *_pack_ambient(db))
+                            dtype=np.int64), filled_col, *ambient)
 
     def state_size(self) -> int:
         """Length of the filter state vector (:func:`state_layout`)."""
@@ -1206,14 +1202,12 @@ class PackedModel:
         if self.dyn_tab.shape[1] != width:   # zone gains: no K in the block
             raise DatabaseError(f"packed dynamics block of {self.dyn_tab.shape[1]} values, the kernel's "
                                 f"layout has {width}: PackedModel and block_layout disagree")
-        nt = nx + nu + ny + nz
-        filled = nt if self.trim_tab.shape[1] in (nt + 1, 3 * nt + 1) else -1
         return Model(self.trim_tab, self.dyn_tab, self.dims, self.ex, self.cls, self.s_scale, self.s_corr,
                      self.s_state,
                      bool(self.online), self.p_tab, np.ascontiguousarray(V_pinv), self.z_gains,
                      self.z_labels, np.ascontiguousarray(gate, dtype=np.float64), int(stuck_n), int(settle_n),
                      int(readmit_n), self.ko_tab, self.ko_avail,
-                     self.sub_tab, filled, int(self.amb_col), self.amb_p, self.amb_k)
+                     self.sub_tab, int(self.filled_col), int(self.amb_col), self.amb_p, self.amb_k)
 
     def grids(self, db: GainDatabase) -> Grids:
         """The kernel's :class:`Grids` record of ``db`` (the database this model packs)."""
@@ -1222,16 +1216,27 @@ class PackedModel:
                      bool(tg.extrapolate))
 
 
-def _pack_ambient(db: GainDatabase):
-    """(amb_col, amb_p, amb_k) of :class:`Model`: the trim table's first ambient column (the last
-    2 nt columns; -1 without an ambient record), the scheduling variables altitude and Mach, and
-    [T_std, the largest |dT| used]."""
-    if db.ambient is None:
-        return -1, np.zeros(2, dtype=np.int64), np.zeros(2)
-    nt = sum(db.n(k) for k in "xuyz")
-    a, names = db.ambient, db.names["p"]
-    return (nt + int(np.any(db.trim_status != 0)), np.array([names.index(a.alt), names.index(a.mach)], dtype=np.int64),
-            np.array([db.correction.T_std, AMBIENT_REACH * a.span]))
+def _pack_trims(db: GainDatabase):
+    """(trim_tab, filled_col, (amb_col, amb_p, amb_k)) of :class:`Model`: the trim table, one row per
+    trim node, [x, u, y, z (nt values) (, 1 on nodes the build filled: only when there are some)
+    (, the ambient terms c1 of x..z, then c2)], the filled column and the first ambient column (-1
+    when absent), the ambient's scheduling variables altitude and Mach and [T_std, the largest |dT|
+    used]."""
+    tg = db.trim_grid
+    cols = [db.trim[k].reshape(tg.size, -1) for k in "xuyz"]
+    nt = sum(c.shape[1] for c in cols)
+    filled_col = amb_col = -1
+    amb_p, amb_k = np.zeros(2, dtype=np.int64), np.zeros(2)
+    if np.any(db.trim_status != 0):
+        filled_col = nt
+        cols.append((db.trim_status != 0).astype(float).reshape(tg.size, 1))
+    if db.ambient is not None:
+        a, names = db.ambient, db.names["p"]
+        amb_col = sum(c.shape[1] for c in cols)
+        cols += [a.coef[k][..., j, :].reshape(tg.size, -1) for j in (0, 1) for k in "xuyz"]
+        amb_p = np.array([names.index(a.alt), names.index(a.mach)], dtype=np.int64)
+        amb_k = np.array([db.correction.T_std, AMBIENT_REACH * a.span])
+    return np.ascontiguousarray(np.concatenate(cols, axis=1)), filled_col, (amb_col, amb_p, amb_k)
 
 
 def _pack_zones(db: GainDatabase, zones, tune: bool):

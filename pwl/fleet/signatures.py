@@ -94,12 +94,17 @@ class Signatures:
         trim = {k: v[0] for k, v in db.trims_at(p[None], th).items()}    # on this day (db.ambient)
         return th, de, p, trim
 
-    def _relative(self, mean: dict, th, de, trim) -> tuple[np.ndarray, np.ndarray]:
-        """(d, the raw-to-relative factor per channel): relative deviations of ``self.channels``."""
-        nm, ydev = self.db.names, [self.db.names["y"].index(c) for c in self.dev_y]
-        fac = np.r_[self.db.correction_factor(nm["y"], th, de)[0][ydev], self.db.correction_factor(nm["u"], th, de)[0]]
-        ref = np.r_[trim["y"][ydev], trim["u"]]
-        return np.array([mean[c] for c in self.channels]) / fac / ref - 1.0, fac * ref
+    def _factors(self, th, de) -> tuple[np.ndarray, np.ndarray]:
+        """The correction factors theta^a delta^b of every sensed output and input (fy, fu)."""
+        return (self.db.correction_factor(self.db.names["y"], th, de)[0],
+                self.db.correction_factor(self.db.names["u"], th, de)[0])
+
+    def _relative(self, mean: dict, fy, fu, trim) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(d, fac, ref): relative deviations d = raw / fac / ref - 1 of ``self.channels``, with
+        their correction factors and corrected trims."""
+        ydev = [self.db.names["y"].index(c) for c in self.dev_y]
+        fac, ref = np.r_[fy[ydev], fu], np.r_[trim["y"][ydev], trim["u"]]
+        return np.array([mean[c] for c in self.channels]) / fac / ref - 1.0, fac, ref
 
     def at(self, mean: dict, se: dict) -> Deviation:
         """Deviation and signatures of one snapshot: ``mean``/``se`` map raw channel -> value.
@@ -133,10 +138,9 @@ class Signatures:
         S = np.vstack([dy[ydev] / trim["y"][ydev, None], du / trim["u"][:, None]])
         for r, c in enumerate(self.channels):                    # own biases: unit columns
             S[r, nh + (nm["y"].index(c) if c in nm["y"] else db.n("y") + nm["u"].index(c))] += 1.0
-        d, scale = self._relative(mean, th, de, trim)
-        s = np.array([se.get(c, np.nan) for c in self.channels]) / scale
-        fy = db.correction_factor(nm["y"], th, de)[0]
-        fu = db.correction_factor(nm["u"], th, de)[0]
+        fy, fu = self._factors(th, de)
+        d, fac, ref = self._relative(mean, fy, fu, trim)
+        s = np.array([se.get(c, np.nan) for c in self.channels]) / fac / ref
         level = np.r_[np.full(nh, np.nan), trim["y"] * fy, trim["u"] * fu, [mean[c] for c in self.inlet]]
         S[:, nh:nh + db.n("y")] /= level[nh:nh + db.n("y")]     # sensed outputs: offsets in raw units
         cols = []
@@ -146,7 +150,7 @@ class Signatures:
             for sign in (1.0, -1.0):
                 moved = dict(mean, **{c: mean[c] + sign * h})
                 th_m, de_m, _, trim_m = self._trims(moved)
-                side.append(self._relative(moved, th_m, de_m, trim_m)[0])
+                side.append(self._relative(moved, *self._factors(th_m, de_m), trim_m)[0])
             cols.append((side[0] - side[1]) / (2.0 * h))
         if cols:
             S = np.hstack([S, np.column_stack(cols)])
