@@ -370,3 +370,59 @@ def settings(plan: FleetPlan) -> dict:
             "flight_durations": dict(FLIGHT_DURATIONS), "dither": False, "dt": DT,
             "onset_range": list(_onset_range(plan.flights)), "start": START.isoformat(),
             "flight_interval_days": 1, "health_names": list(H_NAMES)}
+
+
+#: the steady operating points of an engine-monitoring report's snapshots: ground idle (alt 0,
+#: Mach 0, throttle :data:`models.flight.TRA` idle) and the flight's cruise
+SNAPSHOT_REGIMES = ("idle", "cruise")
+#: what the columns of :func:`snapshot_rows` hold besides the sensors: who, when, where
+SNAPSHOT_KEYS = ("engine", "flight", "flight_time", "regime", "alt", "Mach", "T2", "P2")
+
+
+def snapshot_rows(plan: FleetPlan, engine_index: int, flight_index: int, samples: int = 1,
+                  model=None) -> list[dict]:
+    """The flight's steady snapshots as an engine-monitoring report carries them (ProDiMES gives
+    its data so): one row per regime of :data:`SNAPSHOT_REGIMES`, the engine's steady state there
+    on the flight's day (:func:`health_at`, ``dTamb``; cruise at the flight's altitude, Mach and
+    cruise throttle), every sensor with its noise averaged over ``samples`` readings (relative
+    one-sigma ``Turbofan().sensor_noise`` / sqrt(samples); T2, P2 as :data:`models.flight.CHANNEL_NOISE`;
+    alt, Mach and Wf as the logs carry them, without noise) and the sensor fault applied as in
+    :func:`simulate_flight`. Columns :data:`SNAPSHOT_KEYS`, then the sensors and Wf, model units;
+    seeded by the flight's noise seed. Raises models.turbofan.PlantError if a trim fails."""
+    from .flight import CHANNEL_NOISE, CONTROL, TRA
+
+    i, j = _check_index(plan, engine_index, flight_index)
+    if isinstance(samples, bool) or not isinstance(samples, (int, np.integer)) or samples < 1:
+        raise ValueError(f"samples must be an integer >= 1, got {samples!r}")
+    s = flight_settings(plan, i, j)
+    m = model if model is not None else _pristine_model()
+    h = health_at(plan, i, j)
+    rng = np.random.default_rng([s["noise_seed"], 1])    # not the log's noise stream
+    scale = 1.0 / np.sqrt(samples)
+
+    def nfr(tra):
+        return CONTROL["NfR_idle"] + tra / 100.0 * (CONTROL["NfR_max"] - CONTROL["NfR_idle"])
+
+    points = {"idle": (0.0, 0.0, nfr(TRA["idle"])),
+              "cruise": (s["cruise_alt"], s["cruise_mach"], nfr(s["tra_cruise"]))}
+    c, active = plan.fault_class[i], fault_active(plan, i, j)
+    rows = []
+    for regime in SNAPSHOT_REGIMES:
+        alt, mach, nf = points[regime]
+        env = np.array([alt, mach, s["dTamb"]])
+        t = m.trim(np.array([alt, mach, nf]), h, env)
+        T2, P2 = m.inlet(env)
+        row = {"engine": plan.serial[i], "flight": j, "flight_time": flight_start(j), "regime": regime,
+               "alt": alt, "Mach": mach}
+        for name, v in (("T2", T2), ("P2", P2)):
+            row[name] = float(v * (1.0 + scale * CHANNEL_NOISE[name] * rng.standard_normal()))
+        for k, name in enumerate(m.y_names):
+            noise = scale * m.sensor_noise.get(name, 0.0) * rng.standard_normal()
+            row[name] = float(t["y"][k] * (1.0 + noise))
+        row["Wf"] = float(t["u"][0])
+        if active and c == "sensor:Wf":
+            row["Wf"] *= 1.0 + float(plan.magnitude[i])
+        elif active and c.startswith("sensor:"):
+            row[c.split(":", 1)[1]] += float(plan.bias[i])
+        rows.append(row)
+    return rows

@@ -203,6 +203,21 @@ class GainDatabase:
         ex = np.array([self.exponents_of(c) for c in channels]).reshape(-1, 2)
         return th ** ex[:, 0] * de ** ex[:, 1]
 
+    def channel_units(self) -> dict[str, str]:
+        """Log channel -> the unit the runtime reads it in: inputs, outputs and scheduling
+        channels taken as they are (their database units), then ``log_channels``' (the inlet's
+        T2, P2, ...)."""
+        units = {n: u for k in "xuyz" for n, u in zip(self.names[k], self.units[k])}
+        for (c, corr, scale), pu in zip(self.schedule, self.units["p"]):
+            if not corr and scale == 1.0:
+                units.setdefault(c, pu)
+        return units | {c: u for c, (u, _, _) in (self.log_channels or {}).items()}
+
+    def channel_ranges(self) -> dict[str, tuple[float, float]]:
+        """Log channel -> its plausible (lo, hi) in :meth:`channel_units` (``log_channels``;
+        channels without one are absent)."""
+        return {c: (lo, hi) for c, (_, lo, hi) in (self.log_channels or {}).items()}
+
     def p_spans(self) -> np.ndarray:
         """(np,) span hi - lo of every scheduling variable's axis (trim grid, else dynamics grid,
         else 1): the scale of "steady" and of operating regimes."""

@@ -347,13 +347,8 @@ class Estimator:
                       "y_hat": db.names["y"], "residual": db.names["y"], "z_hat": db.names["z"]}
         if online and health_std:
             self.names["h_std"] = db.names["h"]
-        units = {n: u for k in "xuyz" for n, u in zip(db.names[k], db.units[k])}
-        for (c, corr, scale), pn, pu in zip(db.schedule, db.names["p"], db.units["p"]):
-            if not corr and scale == 1.0:
-                units.setdefault(c, pu)
-        lc = db.log_channels or {}
-        self.channel_units = units | {c: u for c, (u, _, _) in lc.items()}
-        self.ranges = {c: (lo, hi) for c, (_, lo, hi) in lc.items()}
+        self.channel_units = db.channel_units()
+        self.ranges = db.channel_ranges()
         self._limits = self._column_limits()
         self._air = air_data_channels(self.pm.schedule_channels, self.channel_units, self.pm.delta_channel)
         self._VT = np.ascontiguousarray(self.db.tuner["V_pinv"].T)

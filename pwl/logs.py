@@ -741,8 +741,14 @@ def _from_frame(path, df, cmap, names=None) -> Log:
 
 
 def _read_csv(path, cmap) -> Log:
-    """Delimited text through pandas: separator sniffed from the header (comma, semicolon, tab,
-    else runs of spaces); decimal comma or point (:func:`_decimal`); UTF-8, UTF-16 with a
+    """A log of delimited text (:func:`csv_frame`)."""
+    df, cells = csv_frame(path)
+    return _from_frame(path, df, cmap, names=cells)
+
+
+def csv_frame(path):
+    """(DataFrame, header cells) of delimited text through pandas: separator sniffed from the
+    header (comma, semicolon, tab, else runs of spaces); decimal comma or point (:func:`_decimal`); UTF-8, UTF-16 with a
     byte-order mark or cp1252 (:func:`_encoding`); empty cells NaN. Leading ``#`` comment lines
     and blank lines are skipped; a row of units under the header (``rpm, K, kPa, ...``: no cell a
     number) declares the units (:func:`_units_of_row`). Compressed files (:data:`_COMPRESSED`) are read as they are."""
@@ -789,7 +795,7 @@ def _read_csv(path, cmap) -> Log:
         _check_row_lengths(path, sep, len(cells), skip=len(skiprows) + 1, encoding=encoding)
     if decimal == ",":
         _points(df)
-    return _from_frame(path, df, cmap, names=cells)
+    return df, cells
 
 
 #: a number written with a decimal comma (``0,015``, ``-2,5E3``), or with thousands separators
@@ -945,12 +951,17 @@ def _check_row_lengths(path, sep, k, skip: int = 1, encoding: str = "utf-8") -> 
 
 
 def _read_parquet(path, cmap) -> Log:
+    return _from_frame(path, parquet_frame(path), cmap)
+
+
+def parquet_frame(path):
+    """The DataFrame of a Parquet file (pyarrow; a LogError saying how to install it)."""
     try:
         importlib.import_module("pyarrow")
     except ImportError:
         raise LogError(f"{path}: reading Parquet needs pyarrow: pip install 'pwl[parquet]'") from None
     import pandas as pd
-    return _from_frame(path, pd.read_parquet(path, engine="pyarrow"), cmap)
+    return pd.read_parquet(path, engine="pyarrow")
 
 
 #: MATLAB variables that are not data

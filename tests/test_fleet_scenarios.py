@@ -297,3 +297,28 @@ def test_diagnose_and_trend_exclude_flights(scenario, tmp_path, capsys):
     assert "excluded" not in capsys.readouterr().out
     assert main(["trend", os.path.join(res, engine), "--fleet", res, "--exclude", f"{engine}:5"]) == rc
     assert "excluded" in capsys.readouterr().out
+
+
+def test_a_snapshot_table_of_the_same_snapshots_gives_the_same_diagnosis(scenario, tmp_path):
+    """The scenario's snapshots (each flight's window per regime) written as a snapshot table, as
+    another system would report them: the same rows (detected, class, kind, onset) and sizes
+    within 2 % (the table carries no standard errors; the fleet's scatter is what counts)."""
+    import pandas as pd
+
+    from pwl.fleet.snapshot_table import read_snapshot_table
+
+    db = GainDatabase.open(DB)
+    rows = []
+    for r in scenario["records"]:
+        s = r.snapshot
+        for w in r.windows.values():
+            rows.append({"engine": r.engine, "flight": r.index, "flight_time": r.order[0], "samples": s.samples[w]}
+                        | dict(zip(s.channels, s.mean[w])))
+    got = diagnose_fleet(read_snapshot_table(pd.DataFrame(rows), db), db)[0]
+    want = [d for e in sorted(scenario["rows"]) for d in scenario["rows"][e]]
+    got.sort(key=lambda d: (d.engine, d.flight))
+    assert [(d.engine, d.flight, d.detected, d.cls, d.kind, d.onset) for d in got] == \
+           [(d.engine, d.flight, d.detected, d.cls, d.kind, d.onset) for d in want]
+    for a, b in zip(got, want):
+        if b.detected:
+            assert a.magnitude == pytest.approx(b.magnitude, rel=0.02), (a.engine, a.flight)

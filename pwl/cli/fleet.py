@@ -29,9 +29,15 @@ def add_arguments(p):
                        description="detect, isolate and size faults from pwl run results, one row per "
                                    "engine and flight (docs/diagnostics.md); unreadable results files "
                                    "are skipped and named, and the exit status is then 1")
-    d.add_argument("results", nargs="+", help="results files or folders (walked recursively) of pwl run")
+    d.add_argument("results", nargs="+",
+                   help="results files or folders (walked recursively) of pwl run, or snapshot tables "
+                        "(.csv, .tsv, .parquet: one row per steady snapshot, docs/diagnostics.md; they need "
+                        "--database)")
     d.add_argument("-o", "--output", default="diagnosis.csv", help="CSV to write (default %(default)s)")
     d.add_argument("--database", help="gain database (default: the one recorded in the results)")
+    d.add_argument("--channel-map", metavar="TOML",
+                   help="the snapshot tables' column names and units -> the model's (docs/runtime.md; "
+                        "default: the tables' own)")
     d.add_argument("--alpha", type=float, default=None,
                    help="false-alarm probability per engine and flight (default 1e-3)")
     d.add_argument("--kappa", type=float, default=None,
@@ -185,11 +191,21 @@ def run_diagnose(args) -> int:
         except re.error as e:
             print(f"pwl fleet diagnose: --engine-pattern {args.engine_pattern!r}: {e}", file=sys.stderr)
             return 2
-    files = results_files(args.results)
-    if not files:
+    from ..fleet.snapshot_table import is_snapshot_table, read_snapshot_table
+    tables = [p for p in args.results if not os.path.isdir(p) and is_snapshot_table(p)]
+    files = results_files([p for p in args.results if p not in tables])
+    if not files and not tables:
         print("pwl fleet diagnose: no results files (*.estimates.h5) found", file=sys.stderr)
         return 2
+    if tables and not args.database:
+        print(f"pwl fleet diagnose: {tables[0]}: a snapshot table records no database: give --database",
+              file=sys.stderr)
+        return 2
     records, skipped = read_flights(files, args.engine_pattern)
+    if tables:
+        db = GainDatabase.open(args.database)
+        for t in tables:
+            records += read_snapshot_table(t, db, args.channel_map)
     if not records:
         print("pwl fleet diagnose: no readable results files", file=sys.stderr)
         return 2

@@ -3,7 +3,10 @@
 Writes FLEET/<serial>/flight_<NNN>.h5 (one flight log per engine and flight, truth inside, fleet
 attrs: engine, flight_index, flight_time, fault class/magnitude/onset, fault_active, the flight's
 settings), FLEET/truth.csv (one row per engine: the fault that was seeded) and FLEET/fleet.json
-(the generation settings and every constant of the fleet, software version).
+(the generation settings and every constant of the fleet, software version). With ``--snapshots``
+FLEET/snapshots.csv instead of the logs: the steady snapshots an engine-monitoring report carries
+(ground idle and cruise per flight, :func:`models.fleet.snapshot_rows`), as ProDiMES gives its
+data, for ``pwl fleet diagnose FLEET/snapshots.csv --database DB``.
 """
 from __future__ import annotations
 
@@ -29,6 +32,13 @@ def add_simulate_arguments(p):
                    help="parallel processes (default: the number of cores)")
     p.add_argument("--fault-fraction", type=float, default=0.6,
                    help="fraction of engines with one abrupt fault, 0..1 (default %(default)g)")
+    p.add_argument("--snapshots", action="store_true",
+                   help="write FLEET/snapshots.csv (steady snapshots at ground idle and cruise per flight, "
+                        "as engine-monitoring reports and ProDiMES give them) instead of flight logs "
+                        "(default: flight logs)")
+    p.add_argument("--snapshot-samples", type=int, default=1, metavar="N",
+                   help="readings each snapshot averages: its noise is the sensors' / sqrt(N) (default "
+                        "%(default)s: one reading, as ProDiMES)")
 
 
 def _init_worker(plan):
@@ -54,16 +64,20 @@ def _one(i, j, path):
     return i, j, None
 
 
-def _write_truth(outdir, rows):
-    path = os.path.join(outdir, "truth.csv")
+def _write_csv(path, cols, rows):
+    """``rows`` (dicts) as CSV columns ``cols``, floats written exactly; atomically."""
     tmp = path + ".tmp"
-    cols = ("engine", "class", "magnitude", "unit", "bias", "bias_unit", "onset", "eff", "flow")
     with open(tmp, "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(cols)
         for r in rows:
             w.writerow([repr(r[c]) if isinstance(r[c], float) else r[c] for c in cols])
     os.replace(tmp, path)
+
+
+def _write_truth(outdir, rows):
+    _write_csv(os.path.join(outdir, "truth.csv"), ("engine", "class", "magnitude", "unit", "bias", "bias_unit",
+                                                    "onset", "eff", "flow"), rows)
 
 
 def _write_json(outdir, data):
@@ -133,10 +147,56 @@ def simulate_fleet(outdir, engines, flights, seed=0, workers=None, fault_fractio
             "faulty_engines": sum(c != "none" for c in plan.fault_class)}
 
 
+def simulate_snapshots(outdir, engines, flights, seed=0, fault_fraction=0.6, samples=1, classes=None,
+                       progress=True) -> dict:
+    """Plan a fleet as :func:`simulate_fleet` does (the same engines, faults and flights for the
+    same seed) and write its steady snapshots to ``outdir``/snapshots.csv (atomically), with
+    truth.csv and fleet.json; returns the summary of :func:`simulate_fleet` (``path``: the table).
+    A flight whose trim fails is recorded and left out."""
+    from models import fleet
+
+    from .. import __version__
+
+    plan = fleet.plan_fleet(engines, flights, seed, fault_fraction, classes)
+    outdir = os.fspath(outdir)
+    os.makedirs(outdir, exist_ok=True)
+    settings = fleet.settings(plan)
+    settings["software"] = {"pwl": __version__}
+    settings["snapshots"] = {"samples": int(samples), "regimes": list(fleet.SNAPSHOT_REGIMES)}
+    t0 = time.perf_counter()
+    rows, failures = [], []
+    total = plan.engines * plan.flights
+    for i in range(plan.engines):
+        for j in range(plan.flights):
+            try:
+                rows += fleet.snapshot_rows(plan, i, j, samples)
+            except Exception as e:  # noqa: BLE001 -- one flight must not lose the fleet
+                failures.append((plan.serial[i], j, f"{type(e).__name__}: {e}"))
+        if progress and (i + 1) % max(1, plan.engines // 10) == 0:
+            print(f"[{(i + 1) * plan.flights}/{total}] flights", file=sys.stderr, flush=True)
+    path = os.path.join(outdir, "snapshots.csv")
+    _write_csv(path, list(rows[0]) if rows else list(fleet.SNAPSHOT_KEYS), rows)
+    _write_json(outdir, settings)
+    _write_truth(outdir, fleet.truth_rows(plan))
+    seconds = time.perf_counter() - t0
+    return {"outdir": outdir, "path": path, "engines": plan.engines, "flights": plan.flights, "total": total,
+            "simulated": total - len(failures), "failed": len(failures), "failures": failures,
+            "seconds": seconds, "flights_per_s": total / max(seconds, 1e-9), "workers": 1,
+            "faulty_engines": sum(c != "none" for c in plan.fault_class)}
+
+
 def run_simulate(args) -> int:
     from .output import check_output
 
     check_output(args.outdir, folder=True)
+    if args.snapshots:
+        s = simulate_snapshots(args.outdir, args.engines, args.flights, args.seed, args.fault_fraction,
+                               args.snapshot_samples)
+        for serial, j, err in s["failures"]:
+            print(f"  {serial} flight {j}: {err}", file=sys.stderr)
+        print(f"{s['path']}: {s['engines']} engines x {s['flights']} flights ({s['faulty_engines']} faulty "
+              f"engines), {s['simulated']} flights' snapshots, {s['failed']} failed, {s['seconds']:.1f} s")
+        return 1 if s["failed"] else 0
     s = simulate_fleet(args.outdir, args.engines, args.flights, args.seed, args.workers,
                        args.fault_fraction, progress=True)
     print(f"{s['outdir']}: {s['engines']} engines x {s['flights']} flights ({s['faulty_engines']} "

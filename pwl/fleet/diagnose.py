@@ -436,8 +436,10 @@ def noise_covariance(series: list[EngineSeries], floor: float) -> np.ndarray:
     se = np.concatenate(ses) if ses else np.zeros((0, m))
     if not se.size:       # no flight has every channel (two instrumentation standards): all flights
         se = np.concatenate([s.SE for s in series])
-    base = floor ** 2 + (np.nanmedian(se, axis=0) ** 2 if se.size and np.isfinite(se).any() else 0.0)
-    base = np.nan_to_num(base, nan=floor ** 2)
+    with warnings.catch_warnings():      # a channel without any standard error (snapshot tables)
+        warnings.simplefilter("ignore", RuntimeWarning)
+        med = np.nanmedian(se, axis=0) if se.size else np.zeros(m)
+    base = np.nan_to_num(floor ** 2 + med ** 2, nan=floor ** 2)
     if X.shape[0] >= 4 * m:
         # start from the channels' median absolute differences, not from the covariance of all
         # differences: a few noisy or intermittently faulty engines (a fifth of the differences)
@@ -446,9 +448,11 @@ def noise_covariance(series: list[EngineSeries], floor: float) -> np.ndarray:
         md = np.sum((X / np.maximum(mad, 1e-300)) ** 2, axis=1)
         cut = stats.chi2.ppf(0.999, m)
         keep = md < cut
-        for _ in range(5):
+        for it in range(6):
             if keep.sum() < 2 * m:        # the channels' differences are correlated: keep more
                 keep = md <= np.sort(md)[2 * m - 1]
+            if it == 5:
+                break
             C = np.cov(X[keep].T, bias=False) / 2.0 + np.diag(base) * 1e-9
             Ci = np.linalg.inv(2.0 * C)
             md = np.einsum("ij,jk,ik->i", X, Ci, X)

@@ -1,0 +1,245 @@
+"""Snapshot tables: steady snapshots another system wrote, diagnosed like those of ``pwl run``.
+
+Engine-monitoring reports (and ProDiMES) give no flight logs but a few steady readings per flight,
+at take-off, climb or cruise. A snapshot table holds them, one row per snapshot (CSV, Parquet, or
+a pandas DataFrame)::
+
+    engine,flight,flight_time,regime,alt,Mach,T2,P2,Nf,Nc,T24,Ps30,T30,T48,P50,P15,Wf
+    ESN001,0,2026-01-01T00:00:00,cruise,9166.5,0.782,260.93,44759.8,3718.8,13245.5,...
+
+Columns, names in any case:
+
+- ``engine`` (or ``esn``, ``serial``, ``engine_serial``): the engine serial;
+- ``flight`` (or ``flight_index``, ``flight_number``, ``cycle``; a whole number) and/or
+  ``flight_time`` (or ``date``, ``datetime``, ``timestamp``): the flights' order, as for results
+  files (:func:`pwl.fleet.diagnose.in_flight_order`); rows of one engine and flight are that
+  flight's snapshots;
+- the channels the database reads (its scheduling channels, e.g. alt, Mach, Nf; the inlet's
+  T2, P2; its sensors and inputs), in the database's units unless declared (``T48[degC]``, a row
+  of units under the header) or mapped and declared by a channel map
+  (:mod:`pwl.channel_map`, whose ``lag`` means nothing here and is refused);
+- ``samples`` (optional): the readings each snapshot averages (default 1): a flight's
+  snapshot with the most is the one whose levels size a sensor's bias as a fraction;
+- anything else (a ``regime`` label, status words) is not read: regimes are found from the
+  operating point, as for results files.
+
+A sensor column may be missing (an engine standard without it: NaN, as a dead sensor); the
+scheduling and inlet channels may not. A value outside the channel's plausible range
+(``/log_channels``) is missing, counted and, when a tenth of a channel's rows are, named in a
+warning with the units that would make it plausible (a T48 in degC undeclared). A snapshot
+carries no sample scatter (its standard error is NaN): the diagnosis takes the flight-to-flight
+scatter from the fleet.
+"""
+from __future__ import annotations
+
+import os
+import sys
+import warnings
+
+import numpy as np
+
+from ..database import GainDatabase
+from ..errors import PwlWarning
+from ..logs import LogError, _from_columns, _split_header, csv_frame, parquet_frame
+from ..snapshots import Snapshots
+from ..units import likely_units
+from .diagnose import FlightRecord, _natural, _whole
+from .signatures import DiagnosisError
+
+ENGINE_NAMES = ("engine", "esn", "serial", "engine_serial")
+FLIGHT_NAMES = ("flight", "flight_index", "flight_number", "cycle")
+TIME_NAMES = ("flight_time", "date", "datetime", "timestamp")
+#: the row number read as the Log's time (a table's rows are not a time series)
+_ROW = "__row__"
+
+
+def is_snapshot_table(path) -> bool:
+    """Whether ``path`` names a snapshot table by its extension (CSV, TSV, Parquet; compressed
+    CSV too)."""
+    p = os.fspath(path).lower()
+    for z in (".gz", ".bz2", ".xz", ".zip"):
+        if p.endswith(z):
+            p = p[: -len(z)]
+    return p.endswith((".csv", ".tsv", ".parquet"))
+
+
+def _frame(source):
+    """(path for messages, DataFrame, header cells) of a path or a DataFrame."""
+    pd = sys.modules.get("pandas")
+    if pd is not None and isinstance(source, pd.DataFrame):
+        return "<DataFrame>", source, [str(c) for c in source.columns]
+    path = os.fspath(source)
+    if not os.path.exists(path):
+        raise DiagnosisError(f"{path}: no such snapshot table")
+    try:
+        if path.lower().endswith(".parquet"):
+            df = parquet_frame(path)
+            return path, df, [str(c) for c in df.columns]
+        df, cells = csv_frame(path)
+        return path, df, cells
+    except LogError as e:
+        raise DiagnosisError(str(e)) from None
+    except Exception as e:  # pandas and pyarrow raise many kinds on a damaged file
+        raise DiagnosisError(f"{path}: unreadable snapshot table ({type(e).__name__}: {e})") from None
+
+
+def _find(path, names: list[str], wanted: tuple, what: str, required: bool) -> int | None:
+    """The column index of the first of ``wanted`` in ``names`` (any case; one column only)."""
+    low = [n.casefold() for n in names]
+    for w in wanted:
+        hits = [i for i, n in enumerate(low) if n == w]
+        if len(hits) > 1:
+            raise DiagnosisError(f"{path}: {len(hits)} columns named {w!r}: which one to use is ambiguous")
+        if hits:
+            return hits[0]
+    if required:
+        raise DiagnosisError(f"{path}: no {what} column (one named {', '.join(wanted)}; columns: "
+                             f"{', '.join(map(repr, names))})")
+    return None
+
+
+def _text(v) -> str:
+    """A cell as text: '' for a missing one, whole numbers without '.0'."""
+    if v is None or (isinstance(v, float) and not np.isfinite(v)):
+        return ""
+    if isinstance(v, (float, np.floating)) and float(v).is_integer():
+        return str(int(v))
+    return str(v).strip()
+
+
+def read_snapshot_table(source, db: GainDatabase, channel_map=None) -> list[FlightRecord]:
+    """FlightRecords of a snapshot table (module docstring), one per engine and flight.
+
+    Parameters
+    ----------
+    source : str, path-like or pandas.DataFrame
+        The table: ``.csv``/``.tsv`` (compressed too) or ``.parquet``, or a DataFrame.
+    db : GainDatabase
+        The database the snapshots are diagnosed with: which channels are read, their units
+        and plausible ranges, and the operating point of each row.
+    channel_map : ChannelMap or str or path-like, optional
+        The table's column names and units -> the model's (:mod:`pwl.channel_map`).
+
+    Returns
+    -------
+    list of FlightRecord
+        ``source`` ``<table>:row <k>`` (the flight's first row, 1-based under the header),
+        ``label`` ``<engine> flight <n>``, ``database`` the database's path and digest, ``mode``
+        ``"table"``; each snapshot's windows are its rows (``samples`` 1, ``se`` NaN).
+
+    Raises
+    ------
+    DiagnosisError
+        Naming the table and the column or row: no engine or flight column, a scheduling or inlet
+        channel missing, a unit that cannot be converted, a flight number that is not whole.
+    """
+    from ..channel_map import ChannelMap
+
+    path, df, cells = _frame(source)
+    heads = [_split_header(c) for c in cells]
+    names, units = [n for n, _ in heads], [u for _, u in heads]
+    ie = _find(path, names, ENGINE_NAMES, "engine", True)
+    i_f = _find(path, names, FLIGHT_NAMES, "flight", False)
+    it = _find(path, names, TIME_NAMES, "flight time", False)
+    i_n = _find(path, names, ("samples",), "samples", False)
+    if i_f is None and it is None:
+        raise DiagnosisError(f"{path}: no flight column (a flight number named {', '.join(FLIGHT_NAMES)}, or a "
+                             f"flight time named {', '.join(TIME_NAMES)}; columns: {', '.join(map(repr, names))})")
+    n = df.shape[0]
+    if not n:
+        raise DiagnosisError(f"{path}: the snapshot table has no rows")
+    cmap = channel_map if channel_map is None or isinstance(channel_map, ChannelMap) else ChannelMap.load(channel_map)
+    if cmap is not None:
+        lagged = [c for c, entry in cmap.channels.items() if entry[4] != 0.0]
+        if lagged:
+            raise DiagnosisError(f"{cmap.path}: [channels] {lagged[0]} has a lag: a snapshot table's rows are "
+                                 "no time series")
+    ids = {ie, i_f, it, i_n} - {None}
+    keep = None if cmap is None else cmap.columns()
+    try:
+        log = _from_columns(path, [_ROW] + [nm for j, nm in enumerate(names) if j not in ids],
+                            [""] + [u for j, u in enumerate(units) if j not in ids],
+                            [np.arange(n, dtype=np.float64)] + [df.iloc[:, j] for j in range(len(names)) if j not in ids],
+                            time=_ROW, keep=keep)
+        if cmap is not None:
+            log = cmap.apply(log)
+        db_units = db.channel_units()
+        sched = [c for c, _, _ in db.schedule]
+        corr = db.correction
+        inlet = [corr.theta_channel, corr.delta_channel] if corr else []
+        need = list(dict.fromkeys(sched + inlet))
+        sensors = [c for c in dict.fromkeys(list(db.names["y"]) + list(db.names["u"])) if c not in need]
+        chans = need + sensors
+        absent = [c for c in sensors if c not in log.channels]
+        X = log.require(chans, [db_units.get(c, "") for c in chans], absent_ok=absent)
+    except LogError as e:
+        raise DiagnosisError(str(e)) from None
+    if absent:
+        warnings.warn(PwlWarning(f"{path}: no column for {', '.join(absent)}: missing on every snapshot "
+                                 "(an engine standard without it?)"), stacklevel=2)
+    X = _plausible(path, X, chans, db, log.units)
+    th = X[:, chans.index(inlet[0])] / corr.T_std if corr else np.ones(n)
+    de = X[:, chans.index(inlet[1])] / corr.P_std if corr else np.ones(n)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        P = db.operating_point(X[:, [chans.index(c) for c in sched]], th, de)
+    P[~np.all(np.isfinite(X[:, :len(need)]), axis=1)] = np.nan     # no operating point without them
+
+    count = np.ones(n, dtype=np.int64)
+    if i_n is not None:
+        v = _numbers(df.iloc[:, i_n])
+        if not np.all(np.isfinite(v) & (v >= 1) & (v == np.round(v))):
+            k = int(np.flatnonzero(~(np.isfinite(v) & (v >= 1) & (v == np.round(v))))[0])
+            raise DiagnosisError(f"{path}: row {k + 2}: samples {df.iloc[k, i_n]!r} is not a whole number >= 1")
+        count = v.astype(np.int64)
+    engine = [_text(v) for v in df.iloc[:, ie]]
+    flight = [_text(v) for v in df.iloc[:, i_f]] if i_f is not None else [""] * n
+    ftime = [_text(v) for v in df.iloc[:, it]] if it is not None else [""] * n
+    groups: dict[tuple, list[int]] = {}
+    for k in range(n):
+        if not engine[k]:
+            raise DiagnosisError(f"{path}: row {k + 2} has no engine")
+        if not flight[k] and not ftime[k]:
+            raise DiagnosisError(f"{path}: row {k + 2} (engine {engine[k]}) has neither flight number nor time")
+        groups.setdefault((engine[k], flight[k], ftime[k]), []).append(k)
+    records = []
+    for (e, fl, tm), rows in groups.items():
+        fidx = _whole(fl, f"{path}: row {rows[0] + 2}") if fl else -1
+        rows = np.array(rows)
+        w = rows.size
+        snap = Snapshots(chans, list(db.names["p"]), rows.astype(np.float64), rows.astype(np.float64),
+                         count[rows], X[rows], np.full((w, len(chans)), np.nan),
+                         np.isfinite(X[rows]).astype(np.float64), P[rows])
+        label = f"{e} flight {fl}" if fl else f"{e} {tm}"
+        records.append(FlightRecord(e, (tm, fidx, _natural(label)), f"{path}:row {rows[0] + 2}", label, snap,
+                                    db.path, db.digest, "table"))
+    return records
+
+
+def _numbers(column) -> np.ndarray:
+    """A column as float64, text that is no number NaN."""
+    import pandas as pd
+    return pd.to_numeric(column, errors="coerce").to_numpy(dtype=np.float64)
+
+
+def _plausible(path, X, chans, db: GainDatabase, declared: dict) -> np.ndarray:
+    """X with every value outside its channel's plausible range NaN; a PwlWarning names a channel
+    with a tenth of its rows so, with the units that would make its typical value plausible."""
+    ranges, units = db.channel_ranges(), db.channel_units()
+    X = X.copy()
+    for j, c in enumerate(chans):
+        lo, hi = ranges.get(c, (-np.inf, np.inf))
+        col = X[:, j]
+        bad = np.isfinite(col) & ((col < lo) | (col > hi)) | np.isinf(col)
+        if not bad.any():
+            continue
+        if bad.sum() >= max(1, col.size // 10):
+            med = float(np.median(col[bad]))
+            guess = likely_units(med, units.get(c, ""), lo, hi)
+            why = (f"logged in {' or '.join(guess)}? Declare the unit (a 'name[unit]' column, a row of units or "
+                   "a channel map)") if guess else "a unit mistake or a failed sensor?"
+            had = f" (declared {declared[c]})" if declared.get(c) else ""
+            warnings.warn(PwlWarning(f"{path}: channel {c!r}{had}: {int(bad.sum())} of {col.size} snapshots "
+                                     f"implausible, typically {med:.6g} where {lo:.6g} to {hi:.6g} "
+                                     f"{units.get(c, '')} is plausible: {why}; read as missing"), stacklevel=3)
+        col[bad] = np.nan
+    return X
