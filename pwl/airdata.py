@@ -72,6 +72,15 @@ def ambient_offset(t_inlet, alt_m, mach):
     return t_inlet / (1.0 + 0.5 * (_GAMMA - 1.0) * mach * mach) - t_std
 
 
+@vectorize(["float64(float64, float64, float64)"], cache=True, nopython=True)
+def inlet_temperature(alt_m, mach, offset):
+    """The inlet total temperature (K) at pressure altitude ``alt_m`` (m) and flight Mach ``mach``
+    on a day ``offset`` K off the standard atmosphere: the inverse of :func:`ambient_offset`. A
+    ufunc, callable from numba code (a missing inlet temperature carried by the day)."""
+    t_std = _T_SL - _LAPSE * min(alt_m, _H_TROP)
+    return (t_std + offset) * (1.0 + 0.5 * (_GAMMA - 1.0) * mach * mach)
+
+
 @vectorize(["float64(float64, float64)"], cache=True, nopython=True)
 def inlet_pressure(alt_m, mach):
     """The inlet total pressure (Pa) of full ram recovery at pressure altitude ``alt_m`` (m) and
