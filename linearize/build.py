@@ -31,7 +31,7 @@ from concurrent.futures import Executor, as_completed
 
 import numpy as np
 
-from pwl.airdata import ambient_offset
+from pwl.airdata import ambient_offset, inlet_pressure
 from pwl.database import COMPUTED, EXTRAPOLATED, FILLED, OUT_NONE, REPLACED, Ambient, Correction, GainDatabase
 from pwl.errors import PwlError
 from pwl.grid import Axis, Grid
@@ -493,7 +493,8 @@ def build(spec: BuildSpec, out_path, *, plant=None, executor: Executor | None = 
                 trim[k].reshape(tg.size, -1)[i] /= fac[k]
         ambient = None
         if span > 0.0:
-            ambient = Ambient({k: trim[f"ambient_{k}"] for k in "xuyz"}, span, "alt", "Mach")
+            ambient = Ambient({k: trim[f"ambient_{k}"] for k in "xuyz"}, span, "alt", "Mach",
+                              inlet_recovery(plant, spec.trim_grid, log))
 
         # ---- noise covariances per dynamics point (corrected units: noise scales with the value)
         pts = []
@@ -863,6 +864,21 @@ def ambient_span(plant, spec: BuildSpec, grid, log=print) -> float:
             f"gives the day's offset {worst:.2g} K off by the runtime's formula (ISA, ram rise gamma 1.4)")
         return 0.0
     return span
+
+
+def inlet_recovery(plant, grid, log=print) -> float:
+    """The plant's inlet total-pressure recovery: its inlet pressure over the full ram rise of
+    pressure altitude and Mach (:func:`pwl.airdata.inlet_pressure`) on the standard day, the median
+    over the trim grid's nodes (for a plant with the ambient axes, :func:`ambient_span`); logged
+    with its spread. A log without the inlet pressure takes it from altitude and Mach with it."""
+    axes = proto.ambient_axes(plant)
+    p_std = float(plant.correction.get("P_std", 101325.0))
+    r = np.array([plant.theta_delta(plant.environment(p))[1] * p_std / float(inlet_pressure(p[axes[0]], p[axes[1]]))
+                  for p in grid.nodes()])
+    rec = float(np.median(r))
+    log(f"inlet: pressure recovery {rec:.4f} ({r.min():.4f}-{r.max():.4f} over the trim grid): a log without "
+        "the inlet pressure takes it from altitude and Mach")
+    return rec
 
 
 def _in_order(errors: dict, grid, points) -> dict:

@@ -103,12 +103,22 @@ class Ambient:
     correction's theta channel (the inlet's total temperature) and the scheduling variables
     ``alt`` (pressure altitude, m) and ``mach`` (:func:`pwl.airdata.ambient_offset`), held within
     +-AMBIENT_REACH * span. ``coef`` maps kind (x, u, y, z) -> trim grid shape + (2, n): [c1 per K,
-    c2 per K^2], through the plant's trims at ISA -span, 0, +span (``span`` K)."""
+    c2 per K^2], through the plant's trims at ISA -span, 0, +span (``span`` K). ``recovery``: the
+    plant's inlet total-pressure recovery, the inlet pressure over the full ram rise of pressure
+    altitude and Mach (:func:`pwl.airdata.inlet_pressure`), median over the trim grid's nodes
+    (NaN: not known): a log without the inlet pressure takes it from altitude and Mach with it."""
 
     coef: dict[str, np.ndarray]
     span: float
     alt: str = "alt"
     mach: str = "Mach"
+    recovery: float = float("nan")
+
+    def inlet_pressure(self, alt_m, mach):
+        """The inlet total pressure (Pa) at pressure altitude ``alt_m`` (m) and Mach ``mach``
+        (arrays) with the plant's :attr:`recovery` (NaN when not known)."""
+        from .airdata import inlet_pressure
+        return self.recovery * inlet_pressure(np.asarray(alt_m, dtype=np.float64), np.asarray(mach, dtype=np.float64))
 
 
 @dataclass
@@ -437,6 +447,8 @@ class GainDatabase:
                                     f"variables {a.alt!r} and {a.mach!r} (have {self.names['p']})")
             if not (np.isfinite(a.span) and a.span > 0):
                 raise DatabaseError(f"{where}: /trim attribute ambient_span = {a.span} must be a positive number")
+            if not (np.isnan(a.recovery) or 0.5 < a.recovery <= 1.1):
+                raise DatabaseError(f"{where}: /trim attribute ambient_recovery = {a.recovery} must be in (0.5, 1.1]")
         for c in channels:
             if not isinstance(c, str) or not c.strip() or (self.log_channels is not None
                                                              and c not in self.log_channels):
@@ -538,6 +550,8 @@ class GainDatabase:
             if self.ambient is not None:
                 f["trim"].attrs.update({"ambient_span": float(self.ambient.span), "ambient_alt": self.ambient.alt,
                                         "ambient_mach": self.ambient.mach})
+                if np.isfinite(self.ambient.recovery):
+                    f["trim"].attrs["ambient_recovery"] = float(self.ambient.recovery)
             if self.correction is not None:
                 c = f.require_group("correction")
                 c.attrs.update({"theta_channel": self.correction.theta_channel,
@@ -670,7 +684,7 @@ class GainDatabase:
             t = f["trim"]
             db.ambient = Ambient({k: need(f"trim/ambient_{k}")[()] for k in "xuyz"},
                                  float(t.attrs.get("ambient_span", np.nan)), attr_str(t, "ambient_alt", "alt"),
-                                 attr_str(t, "ambient_mach", "Mach"))
+                                 attr_str(t, "ambient_mach", "Mach"), float(t.attrs.get("ambient_recovery", np.nan)))
         db.dynamics = {k: need(f"dynamics/{k}")[()] for k in MATRICES}
         db.dyn_status, db.dyn_donor = need("dynamics/status")[()], need("dynamics/donor")[()]
         db.tuner = {k: need(f"tuner/{k}")[()] for k in ("V", "V_pinv", "h_ref")}

@@ -674,6 +674,17 @@ class Estimator:
         needed = set(self.pm.schedule_channels)      # the filter cannot start without them
         return [c for c in self.db.names["y"] if c not in have and c not in needed]
 
+    def inlet_from_air_data(self, log: Log) -> bool:
+        """Whether ``log`` lacks the inlet total pressure (the delta channel; flight data recorders
+        and engine-monitoring reports seldom carry it) and the run takes it from pressure altitude
+        and Mach instead, with the inlet's pressure recovery of the database's build
+        (:meth:`pwl.database.Ambient.inlet_pressure`; databases with the ambient terms). On the
+        demo flights the estimates equal the logged P2's within 0.01 pt of health (full ram
+        recovery, 1.0 instead of the plant's 0.995, read 2 pt)."""
+        pm, a = self.pm, self.db.ambient
+        return bool(pm.delta_channel and pm.delta_channel not in (log.channels or log.units)
+                    and self._air is not None and a is not None and np.isfinite(a.recovery))
+
     def dead_sensors(self, log: Log) -> list[str]:
         """The sensed outputs that a log has but that were NaN on every sample run since the last
         :meth:`reset` (a sensor dead for the whole log, a column never recorded): they run as
@@ -685,6 +696,10 @@ class Estimator:
     def _warn_absent(self, log: Log, dead: bool = False) -> None:
         """Warn of the sensors run without: the log's absent ones (:meth:`absent_sensors`), or
         with ``dead``, after the run, those it has NaN on every sample (:meth:`dead_sensors`)."""
+        if not dead and self.inlet_from_air_data(log):
+            warnings.warn(f"{log.path}: no {self.pm.delta_channel!r} channel: the inlet pressure is taken from pressure "
+                          "altitude and Mach (standard atmosphere, ram rise) with the inlet's pressure recovery of "
+                          f"the database's build ({self.db.ambient.recovery:.4f})", PwlWarning, stacklevel=3)
         absent = self.dead_sensors(log) if dead else self.absent_sensors(log)
         if not absent:
             return
@@ -913,8 +928,15 @@ class Estimator:
         def take(names, r=wide):
             return log.require(names, [units.get(n, "") for n in names], absent, r)
         U, S, Y = take(db.names["u"]), take(pm.schedule_channels), take(db.names["y"])
-        TD = take([pm.theta_channel, pm.delta_channel]) / [db.correction.T_std, db.correction.P_std] \
-            if pm.theta_channel else np.ones((U.shape[0], 2))
+        if not pm.theta_channel:
+            TD = np.ones((U.shape[0], 2))
+        elif self.inlet_from_air_data(log):
+            ja, jm, ka, kp = self._air
+            TD = np.column_stack([take([pm.theta_channel])[:, 0],
+                                  db.ambient.inlet_pressure(S[:, ja] * ka, S[:, jm]) / kp])
+            TD /= [db.correction.T_std, db.correction.P_std]
+        else:
+            TD = take([pm.theta_channel, pm.delta_channel]) / [db.correction.T_std, db.correction.P_std]
         cols = np.hstack([U, S, TD])
         held = self._find_held(log) if held is None else held
         self.low_rate.update({c: max(self.low_rate.get(c, 0.0), h[2]) for c, h in held.items()})
@@ -1214,6 +1236,7 @@ class Estimator:
                "missing_channels": json.dumps({c: n for c, n in self.missing.items() if n}),
                "misfit_channels": json.dumps({c: n for c, n in self.misfit.items() if n}),
                "absent_channels": json.dumps(self.absent_sensors(log)),
+               "from_air_data": json.dumps([self.pm.delta_channel] if self.inlet_from_air_data(log) else []),
                "failed_channels": json.dumps(self.failed),
                "low_rate_channels": json.dumps(self.low_rate),
                "air_data_lag_s": float(self.air_data_lag[0])}

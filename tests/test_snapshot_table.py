@@ -160,3 +160,19 @@ def test_pwl_fleet_diagnose_takes_a_table(tmp_path, db, capsys):
     with open(out) as fh:
         assert len(list(csv.DictReader(fh))) == 4 * 6
     assert os.path.exists(tmp_path / "F" / "truth.csv")
+
+
+def test_a_table_without_the_inlet_pressure_takes_it_from_air_data(tmp_path, db, plan):
+    """Engine-monitoring reports seldom carry P2: taken from pressure altitude and Mach with the
+    plant's inlet recovery the build measured (said in a warning); the fleet's diagnosis is the
+    one with the logged P2 (the same rows: detected, class, kind, onset)."""
+    rows = table_rows(plan)
+    native = diagnose_fleet(read_snapshot_table(write_table(tmp_path / "a.csv", rows), db), db)[0]
+    with pytest.warns(PwlWarning, match="no 'P2' column: the inlet pressure is taken from pressure altitude"):
+        recs = read_snapshot_table(write_table(tmp_path / "b.csv", [{k: v for k, v in r.items() if k != "P2"}
+                                                                    for r in rows]), db)
+    j = recs[0].snapshot.channels.index("P2")
+    np.testing.assert_allclose(recs[0].snapshot.mean[:, j], [rows[0]["P2"], rows[1]["P2"]], rtol=1e-3)
+    got = diagnose_fleet(recs, db)[0]
+    assert [(d.engine, d.flight, d.detected, d.cls, d.kind, d.onset) for d in got] == \
+           [(d.engine, d.flight, d.detected, d.cls, d.kind, d.onset) for d in native]

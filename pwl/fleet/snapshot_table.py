@@ -24,7 +24,9 @@ Columns, names in any case:
   operating point, as for results files.
 
 A sensor column may be missing (an engine standard without it: NaN, as a dead sensor); the
-scheduling and inlet channels may not. A value outside the channel's plausible range
+scheduling and inlet channels may not, but for the inlet pressure with a database that knows its
+plant's inlet pressure recovery (builds since 0.7.1): it is then taken from pressure altitude and
+Mach, as the runtime does (``Estimator.inlet_from_air_data``). A value outside the channel's plausible range
 (``/log_channels``) is missing, counted and, when a tenth of a channel's rows are, named in a
 warning with the units that would make it plausible (a T48 in degC undeclared). A snapshot
 carries no sample scatter (its standard error is NaN): the diagnosis takes the flight-to-flight
@@ -38,6 +40,7 @@ import warnings
 
 import numpy as np
 
+from ..airdata import air_data_channels
 from ..database import GainDatabase
 from ..errors import PwlWarning
 from ..logs import LogError, _from_columns, _split_header, csv_frame, parquet_frame
@@ -171,9 +174,19 @@ def read_snapshot_table(source, db: GainDatabase, channel_map=None) -> list[Flig
         sensors = [c for c in dict.fromkeys(list(db.names["y"]) + list(db.names["u"])) if c not in need]
         chans = need + sensors
         absent = [c for c in sensors if c not in log.channels]
-        X = log.require(chans, [db_units.get(c, "") for c in chans], absent_ok=absent)
+        air = air_data_channels(sched, db_units, inlet[1]) if inlet else None
+        derive = (bool(inlet) and inlet[1] not in log.channels and air is not None and db.ambient is not None
+                  and np.isfinite(db.ambient.recovery))
+        X = log.require(chans, [db_units.get(c, "") for c in chans], absent_ok=absent + (inlet[1:] if derive else []))
     except LogError as e:
         raise DiagnosisError(str(e)) from None
+    if derive:      # as the runtime does (Estimator.inlet_from_air_data)
+        ja, jm, ka, kp = air
+        X[:, chans.index(inlet[1])] = db.ambient.inlet_pressure(X[:, chans.index(sched[ja])] * ka,
+                                                                X[:, chans.index(sched[jm])]) / kp
+        warnings.warn(PwlWarning(f"{path}: no {inlet[1]!r} column: the inlet pressure is taken from pressure "
+                                 "altitude and Mach with the inlet's pressure recovery of the database's build "
+                                 f"({db.ambient.recovery:.4f})"), stacklevel=2)
     if absent:
         warnings.warn(PwlWarning(f"{path}: no column for {', '.join(absent)}: missing on every snapshot "
                                  "(an engine standard without it?)"), stacklevel=2)
