@@ -169,7 +169,7 @@ class Model(NamedTuple):
     filled_col: int        # trim_tab's column that is 1 on filled nodes (FLAG_TRIM_FILLED); -1: none
     amb_col: int           # trim_tab's first ambient column (c1 of x..z, then c2); -1: none
     amb_p: np.ndarray      # int64 (2,) the scheduling variables pressure altitude (m) and Mach
-    amb_k: np.ndarray      # (3,) T_std of theta (K), the largest |dT| used (K), P_std of delta (Pa)
+    amb_k: np.ndarray      # (4,) T_std of theta (K), the largest |dT| used (K), P_std of delta (Pa), inlet recovery
 
 
 class Grids(NamedTuple):
@@ -375,7 +375,8 @@ def _air_data(model, state, osl):
 def _carry_day(model, state, osl, oth, th, de, day, recovery):
     """A missing theta or delta from this sample's altitude and Mach: the inlet temperature of the
     day's offset from ISA (``day``, K) and the inlet pressure of the pressure recovery
-    (``recovery``: P2 over full ram recovery), both as the last valid sample had them. Held at
+    (``recovery``: P2 over full ram recovery), both as the last valid sample had them (before any
+    valid delta, the plant's recovery from the build: a stream without P2). Held at
     their last value through a climb, they read as a change of the engine (on the demo flight
     with P2 dead through the climb, Fn 69 % RMS off there; T2 dead, 0.76 %); carried, 0.20 % and
     0.14 %, as with every sensor (``tests/test_inlet_dropout.py``)."""
@@ -383,6 +384,8 @@ def _carry_day(model, state, osl, oth, th, de, day, recovery):
     if not np.isfinite(th):
         state[oth] = inlet_temperature(alt, mach, day) / model.amb_k[0]
     if not np.isfinite(de):
+        if not np.isfinite(recovery):   # none valid yet: the plant's, as the build measured it (or NaN)
+            recovery = model.amb_k[3]
         state[oth + 1] = recovery * inlet_pressure(alt, mach) / model.amb_k[2]
 
 
@@ -1256,12 +1259,12 @@ def _pack_trims(db: GainDatabase):
     trim node, [x, u, y, z (nt values) (, 1 on nodes the build filled: only when there are some)
     (, the ambient terms c1 of x..z, then c2)], the filled column and the first ambient column (-1
     when absent), the ambient's scheduling variables altitude and Mach and [T_std, the largest |dT|
-    used, P_std]."""
+    used, P_std, the plant's inlet pressure recovery (NaN: not known)]."""
     tg = db.trim_grid
     cols = [db.trim[k].reshape(tg.size, -1) for k in "xuyz"]
     nt = sum(c.shape[1] for c in cols)
     filled_col = amb_col = -1
-    amb_p, amb_k = np.zeros(2, dtype=np.int64), np.zeros(3)
+    amb_p, amb_k = np.zeros(2, dtype=np.int64), np.zeros(4)
     if np.any(db.trim_status != 0):
         filled_col = nt
         cols.append((db.trim_status != 0).astype(float).reshape(tg.size, 1))
@@ -1270,7 +1273,7 @@ def _pack_trims(db: GainDatabase):
         amb_col = sum(c.shape[1] for c in cols)
         cols += [a.coef[k][..., j, :].reshape(tg.size, -1) for j in (0, 1) for k in "xuyz"]
         amb_p = np.array([names.index(a.alt), names.index(a.mach)], dtype=np.int64)
-        amb_k = np.array([db.correction.T_std, AMBIENT_REACH * a.span, db.correction.P_std])
+        amb_k = np.array([db.correction.T_std, AMBIENT_REACH * a.span, db.correction.P_std, a.recovery])
     return np.ascontiguousarray(np.concatenate(cols, axis=1)), filled_col, (amb_col, amb_p, amb_k)
 
 
