@@ -372,17 +372,23 @@ def settings(plan: FleetPlan) -> dict:
             "flight_interval_days": 1, "health_names": list(H_NAMES)}
 
 
-#: the steady operating points of an engine-monitoring report's snapshots: ground idle (alt 0,
-#: Mach 0, throttle :data:`models.flight.TRA` idle) and the flight's cruise
-SNAPSHOT_REGIMES = ("idle", "cruise")
+#: the steady operating points an engine-monitoring report's snapshots may be taken at: ground
+#: idle (alt 0, Mach 0, throttle :data:`models.flight.TRA` idle), take-off (alt 0, Mach
+#: :data:`TAKEOFF_MACH`, the flight's take-off throttle) and the flight's cruise
+SNAPSHOT_REGIMES = ("idle", "takeoff", "cruise")
+#: the regimes :func:`snapshot_rows` writes by default (those ``pwl run`` finds steady in a log)
+DEFAULT_SNAPSHOT_REGIMES = ("idle", "cruise")
+#: flight Mach number of a take-off snapshot (ProDiMES takes one near lift-off)
+TAKEOFF_MACH = 0.2
 #: what the columns of :func:`snapshot_rows` hold besides the sensors: who, when, where
 SNAPSHOT_KEYS = ("engine", "flight", "flight_time", "regime", "alt", "Mach", "T2", "P2")
 
 
 def snapshot_rows(plan: FleetPlan, engine_index: int, flight_index: int, samples: int = 1,
-                  model=None) -> list[dict]:
+                  model=None, regimes=DEFAULT_SNAPSHOT_REGIMES) -> list[dict]:
     """The flight's steady snapshots as an engine-monitoring report carries them (ProDiMES gives
-    its data so): one row per regime of :data:`SNAPSHOT_REGIMES`, the engine's steady state there
+    its data so): one row per regime of ``regimes`` (of :data:`SNAPSHOT_REGIMES`; ProDiMES:
+    take-off and cruise), the engine's steady state there
     on the flight's day (:func:`health_at`, ``dTamb``; cruise at the flight's altitude, Mach and
     cruise throttle), every sensor with its noise averaged over ``samples`` readings (relative
     one-sigma ``Turbofan().sensor_noise`` / sqrt(samples); T2, P2 as :data:`models.flight.CHANNEL_NOISE`;
@@ -394,6 +400,10 @@ def snapshot_rows(plan: FleetPlan, engine_index: int, flight_index: int, samples
     i, j = _check_index(plan, engine_index, flight_index)
     if isinstance(samples, bool) or not isinstance(samples, (int, np.integer)) or samples < 1:
         raise ValueError(f"samples must be an integer >= 1, got {samples!r}")
+    bad = [r for r in regimes if r not in SNAPSHOT_REGIMES]
+    if bad or not regimes:
+        raise ValueError(f"unknown snapshot regimes {bad}; known: {', '.join(SNAPSHOT_REGIMES)}" if bad
+                         else "regimes must name at least one of " + ", ".join(SNAPSHOT_REGIMES))
     s = flight_settings(plan, i, j)
     m = model if model is not None else _pristine_model()
     h = health_at(plan, i, j)
@@ -403,11 +413,11 @@ def snapshot_rows(plan: FleetPlan, engine_index: int, flight_index: int, samples
     def nfr(tra):
         return CONTROL["NfR_idle"] + tra / 100.0 * (CONTROL["NfR_max"] - CONTROL["NfR_idle"])
 
-    points = {"idle": (0.0, 0.0, nfr(TRA["idle"])),
+    points = {"idle": (0.0, 0.0, nfr(TRA["idle"])), "takeoff": (0.0, TAKEOFF_MACH, nfr(s["tra_takeoff"])),
               "cruise": (s["cruise_alt"], s["cruise_mach"], nfr(s["tra_cruise"]))}
     c, active = plan.fault_class[i], fault_active(plan, i, j)
     rows = []
-    for regime in SNAPSHOT_REGIMES:
+    for regime in regimes:
         alt, mach, nf = points[regime]
         env = np.array([alt, mach, s["dTamb"]])
         t = m.trim(np.array([alt, mach, nf]), h, env)

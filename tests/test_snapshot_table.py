@@ -66,6 +66,10 @@ def test_snapshot_rows_are_the_plant_steady_state_with_the_fault(plan):
             assert cruise[name] == pytest.approx(t["y"][k] + (bias if name == "T48" else 0.0), rel=1e-6), name
         assert (cruise["T2"], cruise["P2"]) == pytest.approx(m.inlet(env), rel=1e-6)
         assert rows[0]["alt"] == 0.0 and rows[0]["regime"] == "idle"
+    to = fleet.snapshot_rows(plan, i, 0, regimes=("takeoff", "cruise"))       # ProDiMES's two
+    assert [r["regime"] for r in to] == ["takeoff", "cruise"] and to[0]["Mach"] == fleet.TAKEOFF_MACH
+    with pytest.raises(ValueError, match="unknown snapshot regimes"):
+        fleet.snapshot_rows(plan, i, 0, regimes=("climb",))
 
 
 def test_a_plant_snapshot_fleet_is_diagnosed_from_its_table(tmp_path, db, plan):

@@ -36,6 +36,9 @@ def add_simulate_arguments(p):
                    help="write FLEET/snapshots.csv (steady snapshots at ground idle and cruise per flight, "
                         "as engine-monitoring reports and ProDiMES give them) instead of flight logs "
                         "(default: flight logs)")
+    p.add_argument("--snapshot-regimes", default="idle,cruise", metavar="LIST",
+                   help="where the snapshots are taken, of idle, takeoff, cruise (default %(default)s; "
+                        "ProDiMES: takeoff,cruise)")
     p.add_argument("--snapshot-samples", type=int, default=1, metavar="N",
                    help="readings each snapshot averages: its noise is the sensors' / sqrt(N) (default "
                         "%(default)s: one reading, as ProDiMES)")
@@ -148,7 +151,7 @@ def simulate_fleet(outdir, engines, flights, seed=0, workers=None, fault_fractio
 
 
 def simulate_snapshots(outdir, engines, flights, seed=0, fault_fraction=0.6, samples=1, classes=None,
-                       progress=True) -> dict:
+                       progress=True, regimes=None) -> dict:
     """Plan a fleet as :func:`simulate_fleet` does (the same engines, faults and flights for the
     same seed) and write its steady snapshots to ``outdir``/snapshots.csv (atomically), with
     truth.csv and fleet.json; returns the summary of :func:`simulate_fleet` (``path``: the table).
@@ -158,18 +161,21 @@ def simulate_snapshots(outdir, engines, flights, seed=0, fault_fraction=0.6, sam
     from .. import __version__
 
     plan = fleet.plan_fleet(engines, flights, seed, fault_fraction, classes)
+    regimes = tuple(regimes or fleet.DEFAULT_SNAPSHOT_REGIMES)
+    fleet.snapshot_rows(plan, 0, 0, samples, regimes=regimes)      # a bad argument: ValueError, nothing written
     outdir = os.fspath(outdir)
     os.makedirs(outdir, exist_ok=True)
     settings = fleet.settings(plan)
     settings["software"] = {"pwl": __version__}
-    settings["snapshots"] = {"samples": int(samples), "regimes": list(fleet.SNAPSHOT_REGIMES)}
+    settings["snapshots"] = {"samples": int(samples), "regimes": list(regimes),
+                             "takeoff_mach": fleet.TAKEOFF_MACH}
     t0 = time.perf_counter()
     rows, failures = [], []
     total = plan.engines * plan.flights
     for i in range(plan.engines):
         for j in range(plan.flights):
             try:
-                rows += fleet.snapshot_rows(plan, i, j, samples)
+                rows += fleet.snapshot_rows(plan, i, j, samples, regimes=regimes)
             except Exception as e:  # noqa: BLE001 -- one flight must not lose the fleet
                 failures.append((plan.serial[i], j, f"{type(e).__name__}: {e}"))
         if progress and (i + 1) % max(1, plan.engines // 10) == 0:
@@ -190,8 +196,12 @@ def run_simulate(args) -> int:
 
     check_output(args.outdir, folder=True)
     if args.snapshots:
-        s = simulate_snapshots(args.outdir, args.engines, args.flights, args.seed, args.fault_fraction,
-                               args.snapshot_samples)
+        try:
+            s = simulate_snapshots(args.outdir, args.engines, args.flights, args.seed, args.fault_fraction,
+                                   args.snapshot_samples, regimes=[r.strip() for r in args.snapshot_regimes.split(",")])
+        except ValueError as e:
+            print(f"pwl fleet simulate: {e}", file=sys.stderr)
+            return 2
         for serial, j, err in s["failures"]:
             print(f"  {serial} flight {j}: {err}", file=sys.stderr)
         print(f"{s['path']}: {s['engines']} engines x {s['flights']} flights ({s['faulty_engines']} faulty "
