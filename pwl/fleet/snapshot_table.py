@@ -128,7 +128,8 @@ def read_snapshot_table(source, db: GainDatabase, channel_map=None) -> list[Flig
     list of FlightRecord
         ``source`` ``<table>:row <k>`` (the flight's first row, 1-based under the header),
         ``label`` ``<engine> flight <n>``, ``database`` the database's path and digest, ``mode``
-        ``"table"``; each snapshot's windows are its rows (``samples`` 1, ``se`` NaN).
+        ``"table"``; each snapshot's windows are its rows (``samples`` the table's, else 1; ``se``
+        NaN).
 
     Raises
     ------
@@ -136,8 +137,6 @@ def read_snapshot_table(source, db: GainDatabase, channel_map=None) -> list[Flig
         Naming the table and the column or row: no engine or flight column, a scheduling or inlet
         channel missing, a unit that cannot be converted, a flight number that is not whole.
     """
-    from ..channel_map import ChannelMap
-
     path, df, cells = _frame(source)
     heads = [_split_header(c) for c in cells]
     names, units = [n for n, _ in heads], [u for _, u in heads]
@@ -148,31 +147,61 @@ def read_snapshot_table(source, db: GainDatabase, channel_map=None) -> list[Flig
     if i_f is None and it is None:
         raise DiagnosisError(f"{path}: no flight column (a flight number named {', '.join(FLIGHT_NAMES)}, or a "
                              f"flight time named {', '.join(TIME_NAMES)}; columns: {', '.join(map(repr, names))})")
-    n = df.shape[0]
-    if not n:
+    if not df.shape[0]:
         raise DiagnosisError(f"{path}: the snapshot table has no rows")
+    ids = {ie, i_f, it, i_n} - {None}
+    chans, X = _channels(path, [(nm, u, df.iloc[:, j]) for j, (nm, u) in enumerate(heads) if j not in ids], db,
+                         channel_map)
+    P = _operating_points(db, chans, X)
+    count = _samples(path, df, i_n)
+    column = {k: [_text(v) for v in df.iloc[:, j]] if j is not None else [""] * df.shape[0]
+              for k, j in (("engine", ie), ("flight", i_f), ("time", it))}
+    groups: dict[tuple, list[int]] = {}
+    for k, (e, fl, tm) in enumerate(zip(column["engine"], column["flight"], column["time"])):
+        if not e:
+            raise DiagnosisError(f"{path}: row {k + 2} has no engine")
+        if not fl and not tm:
+            raise DiagnosisError(f"{path}: row {k + 2} (engine {e}) has neither flight number nor time")
+        groups.setdefault((e, fl, tm), []).append(k)
+    records = []
+    for (e, fl, tm), rows in groups.items():
+        fidx = _whole(fl, f"{path}: row {rows[0] + 2}") if fl else -1
+        rows = np.array(rows)
+        snap = Snapshots(chans, list(db.names["p"]), rows.astype(np.float64), rows.astype(np.float64),
+                         count[rows], X[rows], np.full((rows.size, len(chans)), np.nan),
+                         np.isfinite(X[rows]).astype(np.float64), P[rows])
+        label = f"{e} flight {fl}" if fl else f"{e} {tm}"
+        records.append(FlightRecord(e, (tm, fidx, _natural(label)), f"{path}:row {rows[0] + 2}", label, snap,
+                                    db.path, db.digest, "table"))
+    return records
+
+
+def _channels(path, columns: list[tuple], db: GainDatabase, channel_map) -> tuple[list[str], np.ndarray]:
+    """(channels, X (rows, channels)) of a table's ``columns`` [(name, unit, values)]: the
+    database's scheduling and inlet channels, then its sensors and inputs, in its units (declared
+    units converted; a channel map applied), implausible values NaN (:func:`_plausible`), an absent
+    sensor NaN and an absent inlet pressure from the air data (warned)."""
+    from ..channel_map import ChannelMap
+
     cmap = channel_map if channel_map is None or isinstance(channel_map, ChannelMap) else ChannelMap.load(channel_map)
     if cmap is not None:
         lagged = [c for c, entry in cmap.channels.items() if entry[4] != 0.0]
         if lagged:
             raise DiagnosisError(f"{cmap.path}: [channels] {lagged[0]} has a lag: a snapshot table's rows are "
                                  "no time series")
-    ids = {ie, i_f, it, i_n} - {None}
-    keep = None if cmap is None else cmap.columns()
+    n = len(columns[0][2]) if columns else 0
+    db_units, corr = db.channel_units(), db.correction
+    sched = [c for c, _, _ in db.schedule]
+    inlet = [corr.theta_channel, corr.delta_channel] if corr else []
+    need = list(dict.fromkeys(sched + inlet))
+    sensors = [c for c in dict.fromkeys(list(db.names["y"]) + list(db.names["u"])) if c not in need]
+    chans = need + sensors
     try:
-        log = _from_columns(path, [_ROW] + [nm for j, nm in enumerate(names) if j not in ids],
-                            [""] + [u for j, u in enumerate(units) if j not in ids],
-                            [np.arange(n, dtype=np.float64)] + [df.iloc[:, j] for j in range(len(names)) if j not in ids],
-                            time=_ROW, keep=keep)
+        log = _from_columns(path, [_ROW] + [c[0] for c in columns], [""] + [c[1] for c in columns],
+                            [np.arange(n, dtype=np.float64)] + [c[2] for c in columns], time=_ROW,
+                            keep=None if cmap is None else cmap.columns())
         if cmap is not None:
             log = cmap.apply(log)
-        db_units = db.channel_units()
-        sched = [c for c, _, _ in db.schedule]
-        corr = db.correction
-        inlet = [corr.theta_channel, corr.delta_channel] if corr else []
-        need = list(dict.fromkeys(sched + inlet))
-        sensors = [c for c in dict.fromkeys(list(db.names["y"]) + list(db.names["u"])) if c not in need]
-        chans = need + sensors
         absent = [c for c in sensors if c not in log.channels]
         air = air_data_channels(sched, db_units, inlet[1]) if inlet else None
         derive = (bool(inlet) and inlet[1] not in log.channels and air is not None and db.ambient is not None
@@ -186,46 +215,37 @@ def read_snapshot_table(source, db: GainDatabase, channel_map=None) -> list[Flig
                                                                 X[:, chans.index(sched[jm])]) / kp
         warnings.warn(PwlWarning(f"{path}: no {inlet[1]!r} column: the inlet pressure is taken from pressure "
                                  "altitude and Mach with the inlet's pressure recovery of the database's build "
-                                 f"({db.ambient.recovery:.4f})"), stacklevel=2)
+                                 f"({db.ambient.recovery:.4f})"), stacklevel=3)
     if absent:
         warnings.warn(PwlWarning(f"{path}: no column for {', '.join(absent)}: missing on every snapshot "
-                                 "(an engine standard without it?)"), stacklevel=2)
-    X = _plausible(path, X, chans, db, log.units)
-    th = X[:, chans.index(inlet[0])] / corr.T_std if corr else np.ones(n)
-    de = X[:, chans.index(inlet[1])] / corr.P_std if corr else np.ones(n)
+                                 "(an engine standard without it?)"), stacklevel=3)
+    return chans, _plausible(path, X, chans, db, log.units)
+
+
+def _operating_points(db: GainDatabase, chans: list[str], X: np.ndarray) -> np.ndarray:
+    """(rows, np) the operating point of every row as the runtime computes it (NaN where a
+    scheduling or inlet channel is missing)."""
+    corr = db.correction
+    sched = [c for c, _, _ in db.schedule]
+    th = X[:, chans.index(corr.theta_channel)] / corr.T_std if corr else np.ones(X.shape[0])
+    de = X[:, chans.index(corr.delta_channel)] / corr.P_std if corr else np.ones(X.shape[0])
     with np.errstate(invalid="ignore", divide="ignore"):
         P = db.operating_point(X[:, [chans.index(c) for c in sched]], th, de)
-    P[~np.all(np.isfinite(X[:, :len(need)]), axis=1)] = np.nan     # no operating point without them
+    need = sched + ([corr.theta_channel, corr.delta_channel] if corr else [])
+    P[~np.all(np.isfinite(X[:, [chans.index(c) for c in need]]), axis=1)] = np.nan
+    return P
 
-    count = np.ones(n, dtype=np.int64)
-    if i_n is not None:
-        v = _numbers(df.iloc[:, i_n])
-        if not np.all(np.isfinite(v) & (v >= 1) & (v == np.round(v))):
-            k = int(np.flatnonzero(~(np.isfinite(v) & (v >= 1) & (v == np.round(v))))[0])
-            raise DiagnosisError(f"{path}: row {k + 2}: samples {df.iloc[k, i_n]!r} is not a whole number >= 1")
-        count = v.astype(np.int64)
-    engine = [_text(v) for v in df.iloc[:, ie]]
-    flight = [_text(v) for v in df.iloc[:, i_f]] if i_f is not None else [""] * n
-    ftime = [_text(v) for v in df.iloc[:, it]] if it is not None else [""] * n
-    groups: dict[tuple, list[int]] = {}
-    for k in range(n):
-        if not engine[k]:
-            raise DiagnosisError(f"{path}: row {k + 2} has no engine")
-        if not flight[k] and not ftime[k]:
-            raise DiagnosisError(f"{path}: row {k + 2} (engine {engine[k]}) has neither flight number nor time")
-        groups.setdefault((engine[k], flight[k], ftime[k]), []).append(k)
-    records = []
-    for (e, fl, tm), rows in groups.items():
-        fidx = _whole(fl, f"{path}: row {rows[0] + 2}") if fl else -1
-        rows = np.array(rows)
-        w = rows.size
-        snap = Snapshots(chans, list(db.names["p"]), rows.astype(np.float64), rows.astype(np.float64),
-                         count[rows], X[rows], np.full((w, len(chans)), np.nan),
-                         np.isfinite(X[rows]).astype(np.float64), P[rows])
-        label = f"{e} flight {fl}" if fl else f"{e} {tm}"
-        records.append(FlightRecord(e, (tm, fidx, _natural(label)), f"{path}:row {rows[0] + 2}", label, snap,
-                                    db.path, db.digest, "table"))
-    return records
+
+def _samples(path, df, i_n) -> np.ndarray:
+    """(rows,) int64 the table's ``samples`` column (whole numbers >= 1; none: ones)."""
+    if i_n is None:
+        return np.ones(df.shape[0], dtype=np.int64)
+    v = _numbers(df.iloc[:, i_n])
+    bad = ~(np.isfinite(v) & (v >= 1) & (v == np.round(v)))
+    if bad.any():
+        k = int(np.flatnonzero(bad)[0])
+        raise DiagnosisError(f"{path}: row {k + 2}: samples {df.iloc[k, i_n]!r} is not a whole number >= 1")
+    return v.astype(np.int64)
 
 
 def _numbers(column) -> np.ndarray:
