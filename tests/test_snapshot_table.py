@@ -180,3 +180,30 @@ def test_a_table_without_the_inlet_pressure_takes_it_from_air_data(tmp_path, db,
     got = diagnose_fleet(recs, db)[0]
     assert [(d.engine, d.flight, d.detected, d.cls, d.kind, d.onset) for d in got] == \
            [(d.engine, d.flight, d.detected, d.cls, d.kind, d.onset) for d in native]
+
+
+def test_snapshots_off_for_one_flight_early_in_a_history_are_no_faults(tmp_path, db, plan):
+    """A snapshot taken in a transient (every channel 2 % off) on a healthy engine's first flight
+    and on another's third: no alarm on any flight (before, the first read as a step at the second
+    flight on every later one; the third hid in the engine's own scatter of so few flights). And
+    a fault on an engine's second flight is still that fault, not its first flight's excursion:
+    the first flight is the one nearer the fleet's normal baseline."""
+    import copy
+
+    p = copy.deepcopy(plan)
+    healthy = [i for i, c in enumerate(p.fault_class) if c == "none"]
+    faulty = next(i for i, c in enumerate(p.fault_class) if c == "hpt")
+    p.onset[faulty] = 1
+    rows = table_rows(p)
+    sensors = ("Nc", "T24", "Ps30", "T30", "T48", "P50", "P15", "Wf")
+    for i, (flight, regime, f) in zip(healthy[:2], ((0, "cruise", 1.02), (2, "idle", 0.98))):
+        r = next(r for r in rows if r["engine"] == p.serial[i] and r["flight"] == flight and r["regime"] == regime)
+        r.update({c: r[c] * f for c in sensors})
+    got = diagnose_fleet(read_snapshot_table(write_table(tmp_path / "t.csv", rows), db), db)[0]
+    by = {}
+    for d in got:
+        by.setdefault(d.engine, []).append(d)
+    for i in healthy[:2]:
+        assert not any(d.detected for d in by[p.serial[i]]), [(d.flight, d.cls) for d in by[p.serial[i]] if d.detected]
+    late = by[p.serial[faulty]][3:]          # testing starts with the fourth flight
+    assert all(d.detected and d.cls == "hpt" and d.onset == 1 for d in late), [(d.flight, d.cls, d.onset) for d in late]

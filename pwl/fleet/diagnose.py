@@ -1326,13 +1326,13 @@ TRANSITION_ALPHA = 1e-6
 TRANSITION_SPREAD = 0.3
 
 
-def _around(D: np.ndarray, Wt: np.ndarray, k: int):
+def _around(D: np.ndarray, Wt: np.ndarray, k: int, start: int = 0):
     """The flight before the latest (row -2 of deviations D (n, m)) against the mean b of up to k
-    flights before it: (x, y, b, scale, cut, one_state) with x, y rows -2 and -1 less b, whitened
-    (Wt), scale the variance factor of a flight's difference from b, cut the
-    :data:`TRANSITION_ALPHA` chi-square quantile, one_state whether each of those k flights lies
-    within cut of b (:func:`_transition`, :func:`_excursion`)."""
-    before = D[max(0, D.shape[0] - 2 - k): -2]
+    flights before it, from row ``start`` on: (x, y, b, scale, cut, one_state) with x, y rows -2
+    and -1 less b, whitened (Wt), scale the variance factor of a flight's difference from b, cut
+    the :data:`TRANSITION_ALPHA` chi-square quantile, one_state whether each of those k flights
+    lies within cut of b (:func:`_transition`, :func:`_excursion`)."""
+    before = D[max(start, D.shape[0] - 2 - k): -2]
     b = before.mean(axis=0)
     x, y = Wt @ (D[-2] - b), Wt @ (D[-1] - b)
     cut = stats.chi2.ppf(1.0 - TRANSITION_ALPHA, x.size)
@@ -1372,9 +1372,11 @@ def _transition(D: np.ndarray, Wt: np.ndarray, regime: np.ndarray) -> bool:
 EXCURSION_BACK = 0.1
 
 
-def _excursion(D: np.ndarray, Wt: np.ndarray, S: np.ndarray, bank: list[Hypothesis]) -> bool:
+def _excursion(D: np.ndarray, Wt: np.ndarray, S: np.ndarray, bank: list[Hypothesis], start: int = 0) -> bool:
     """Whether the flight before the latest (row -2 of deviations D (n, m), whitening Wt, mean
-    signatures S (m, ncol)) was off for that flight only: the flights before it one state, it
+    signatures S (m, ncol)) was off for that flight only: the flights before it (from row
+    ``start``: the latest change found; an excursion on the flight after a fault's onset read as a
+    second fault) one state, it
     significantly off them, the latest back (not significantly off them or within
     :data:`EXCURSION_BACK` of the excursion, and significantly off it),
     and no single sensor's bias explaining it (an intermittent sensor fault is its own finding,
@@ -1385,17 +1387,69 @@ def _excursion(D: np.ndarray, Wt: np.ndarray, S: np.ndarray, bank: list[Hypothes
     better than normal was a recovery and the baseline started on it, and a real fault found near
     it took a fuel-meter bias in (probe fleets with one such flight on 7 engines: 50 false alarms,
     44 on the normal flights after it). Components do not get better by themselves a flight later."""
-    if D.shape[0] < 4:
+    if D.shape[0] < 4 or start > D.shape[0] - 3:
         return False
-    x, y, _, scale, cut, one_state = _around(D, Wt, 4)
+    x, y, _, scale, cut, one_state = _around(D, Wt, 4, start)
     back = y @ y <= max(cut * scale, EXCURSION_BACK ** 2 * (x @ x))
     if not (x @ x > cut * scale and back and (x - y) @ (x - y) > 2.0 * cut and one_state):
         return False
+    return not _one_sensor(x, Wt, S, bank, cut * scale)
+
+
+def _one_sensor(x: np.ndarray, Wt: np.ndarray, S: np.ndarray, bank: list[Hypothesis], cut: float) -> bool:
+    """Whether one sensor's bias explains the whitened change ``x`` to within ``cut`` (chi-square):
+    an intermittent sensor fault, its own finding (:func:`_episodes`), not an excursion."""
     for h in bank:
         if h.name.startswith("sensor:") and "+" not in h.name:
             a = Wt @ S[:, h.columns[0]]
-            if a @ a > 0 and x @ x - (a @ x) ** 2 / (a @ a) <= cut * scale:
-                return False                      # one sensor's bias explains it
+            if a @ a > 0 and x @ x - (a @ x) ** 2 / (a @ a) <= cut:
+                return True
+    return False
+
+
+def _since(rows: list[Decision], numbers: np.ndarray) -> int:
+    """The first of the flights ``numbers`` (the rows tested) at or after the onset of the latest
+    detection of ``rows`` (the decisions so far; 0 when none)."""
+    onsets = [r.onset for r in rows if r.detected and r.onset >= 0]
+    return int(np.searchsorted(numbers, onsets[-1])) if onsets else 0
+
+
+#: a flight of the baseline's first is off alone (:func:`_isolated`) when at least this many times
+#: as far (whitened norm) from the others' mean as any of them
+ISOLATED_RATIO = 3.0
+
+
+def _isolated(D: np.ndarray, j: int, Wt: np.ndarray, S: np.ndarray, bank: list[Hypothesis],
+              fleet: tuple | None = None) -> bool:
+    """Whether flight ``j`` of the first flights of a baseline (rows of deviations D (n, m), n >= 4)
+    was off for that flight only: the others one state, it significantly off their mean
+    (:data:`TRANSITION_ALPHA`), no single sensor's bias explaining it. :func:`_excursion` judges a
+    flight by the flights before it and the one after, once there are three before; the first
+    flights have fewer, and one of them off (a snapshot taken in a transient, a bleed on for that
+    flight) read as a step on every later flight (a snapshot table with 1 % of its snapshots taken
+    in transients: two healthy engines alarmed on all 19 flights after the first, one on six after
+    its second). The first flight off the others is also what a fault on the second flight looks
+    like: with ``fleet`` (the fleet's normal baseline in these channels, mean and covariance, and
+    the flight-to-flight scatter Sigma: :meth:`FleetNorm.at`) the side nearer the fleet's normal
+    is the engine's (an LPC loss of 1.5 % on the second flight of a probe engine was lost as its
+    first flight's excursion); without a fleet, the first flight is the one that was off."""
+    others = np.delete(D, j, axis=0)
+    b = others.mean(axis=0)
+    x = Wt @ (D[j] - b)
+    cut = stats.chi2.ppf(1.0 - TRANSITION_ALPHA, x.size)
+    spread = np.max(np.sum(((others - b) @ Wt.T) ** 2, axis=1))
+    scale = 1.0 + 1.0 / others.shape[0]
+    # off alone: at least three times as far from the others as any of them (a fast drift puts
+    # its first flight twice as far as the third: an engine wearing every component fast from its
+    # first flight lost that flight and was found a flight late)
+    alone = x @ x > max(cut * scale, ISOLATED_RATIO ** 2 * spread)
+    if not (spread <= cut and alone) or _one_sensor(x, Wt, S, bank, cut * scale):
+        return False
+    if j == 0 and fleet is not None:
+        (mean, spread), Sigma = fleet
+        def far(d, n):
+            return float((d - mean) @ np.linalg.solve(spread + Sigma / n, d - mean))
+        return far(D[0], 1) > far(b, others.shape[0])
     return True
 
 
@@ -1436,6 +1490,7 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
               if es.engine in c.onsets]          # its steps of fleet-wide changes
     changed_in_flight: list[int] = []       # transition flights (:func:`_transition`), left out
     off_once: list[int] = []                # flights off for that flight only (:func:`_excursion`), left out
+    judged_first: set[int] = set()          # baselines (first) whose first flights were judged (:func:`_isolated`)
     undo = None                             # (row, first, found) before a recovery's new baseline
     regime = np.array([c.split("@")[-1] for c in es.channels])
     for k in range(n):
@@ -1477,6 +1532,19 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
                     keep = usable(first)
                     rowsok = np.flatnonzero(np.all(upto[:, keep], axis=1))
         rowsok = rowsok[(rowsok >= first) & ~np.isin(rowsok, changed_in_flight + off_once)]
+        if rowsok.size == cfg.n_base + 1 and keep.any() and first not in judged_first:
+            # the baseline's first flights, once, when testing starts: the flights the excursion
+            # test (below) cannot judge, each against the others
+            judged_first.add(first)
+            ix = np.flatnonzero(keep)
+            Sb = np.nanmean(es.S[rowsok][:, ix], axis=0)
+            bank = [h for h in bank_all if _testable(h, Sb)]
+            D0, W0 = es.D[rowsok][:, ix], whitening(Sigma, ix)
+            fleet = (level.at(Sb, ix), Sigma[np.ix_(ix, ix)]) if level is not None and first == 0 else None
+            off = [int(rowsok[j]) for j in range(rowsok.size - 2) if _isolated(D0, j, W0, Sb, bank, fleet)]
+            if len(off) == 1:                    # one off the others (two: no one state to judge by)
+                off_once += off
+                rowsok = rowsok[rowsok != off[0]]
         if rowsok.size < cfg.n_base + 1 or not keep.any():
             dec.status = "baseline"
             rows.append(dec)
@@ -1495,13 +1563,18 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
             if offsets:
                 D = _calibrated(D, Sk, offsets, cfg.n_base + 1)
             toggled = sorted({es.columns.index(c) for o, c in seen if o >= number[first]})
+            W0 = Wt.copy()
             ratio = own_scatter(D, Wt, Sbar_all[:, toggled])
             Wt /= np.sqrt(ratio)
-            if not (rowsok.size > cfg.n_base + 2 and rowsok[-2] == k - 1):
+            if not (rowsok.size >= 4 and rowsok[-2] == k - 1):
                 break
-            if _transition(D, Wt, regime[idx]):
+            # the flight before the latest judged against the engine's own scatter without it: in a
+            # short history its own differences made that scatter (an excursion on the third
+            # flight hid itself and read as a step on the flights after)
+            Wx = W0 / np.sqrt(own_scatter(np.delete(D, -2, axis=0), W0, Sbar_all[:, toggled]))
+            if _transition(D, Wx, regime[idx]):
                 changed_in_flight.append(k - 1)   # its windows straddle a change: not a state of the engine
-            elif _excursion(D, Wt, Sbar_all, bank):
+            elif _excursion(D, Wx, Sbar_all, bank, _since(rows[:-1], number[rowsok])):
                 off_once.append(k - 1)            # off for that flight only: not a state of the engine
             else:
                 break
