@@ -160,6 +160,8 @@ def test_pwl_fleet_diagnose_takes_a_table(tmp_path, db, capsys):
     table = str(tmp_path / "F" / "snapshots.csv")
     assert main(["fleet", "diagnose", table, "-o", out]) == 2
     assert "give --database" in capsys.readouterr().err
+    assert main(["fleet", "diagnose", str(tmp_path / "F"), "-o", out]) == 2      # the folder: a hint
+    assert f"snapshot tables are given as files: pwl fleet diagnose {table}" in capsys.readouterr().err
     assert main(["fleet", "diagnose", table, "--database", demo_paths()[0], "-o", out]) == 0
     with open(out) as fh:
         assert len(list(csv.DictReader(fh))) == 4 * 6

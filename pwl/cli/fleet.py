@@ -195,7 +195,11 @@ def run_diagnose(args) -> int:
     tables = [p for p in args.results if not os.path.isdir(p) and is_snapshot_table(p)]
     files = results_files([p for p in args.results if p not in tables])
     if not files and not tables:
-        print("pwl fleet diagnose: no results files (*.estimates.h5) found", file=sys.stderr)
+        found = [os.path.join(d, f) for p in args.results if os.path.isdir(p)
+                 for d, _, fs in os.walk(p) for f in sorted(fs) if is_snapshot_table(f)][:3]
+        hint = (f"; snapshot tables are given as files: pwl fleet diagnose {found[0]} --database DB"
+                if found else "")
+        print(f"pwl fleet diagnose: no results files (*.estimates.h5) found{hint}", file=sys.stderr)
         return 2
     if tables and not args.database:
         print(f"pwl fleet diagnose: {tables[0]}: a snapshot table records no database: give --database",
