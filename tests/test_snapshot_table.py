@@ -162,6 +162,11 @@ def test_pwl_fleet_diagnose_takes_a_table(tmp_path, db, capsys):
     assert "give --database" in capsys.readouterr().err
     assert main(["fleet", "diagnose", str(tmp_path / "F"), "-o", out]) == 2      # the folder: a hint
     assert f"snapshot tables are given as files: pwl fleet diagnose {table}" in capsys.readouterr().err
+    # one engine's trend from the table, judged against its fleet (the same table)
+    assert main(["trend", table, "--database", demo_paths()[0], "--engine", "ESN001", "--fleet", table]) in (0, 1)
+    text = capsys.readouterr().out
+    assert "engine ESN001: 6 flights" in text and "snapshot tables carry no filter health" in text
+    assert main(["trend", table, "--database", demo_paths()[0], "--engine", "ESN404"]) == 2
     assert main(["fleet", "diagnose", table, "--database", demo_paths()[0], "-o", out]) == 0
     with open(out) as fh:
         assert len(list(csv.DictReader(fh))) == 4 * 6

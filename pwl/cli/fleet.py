@@ -105,6 +105,31 @@ def read_flights(files, engine_pattern=None):
     return records, skipped
 
 
+def read_inputs(command, paths, database=None, channel_map=None, engine_pattern=None):
+    """(records, skipped) of ``paths``: results files and folders of ``pwl run`` (:func:`read_flights`)
+    and snapshot tables (files, :func:`pwl.fleet.snapshot_table.read_snapshot_table`, which need
+    ``database``); (None, []) after printing why when there is nothing to read or no database."""
+    from ..database import GainDatabase
+    from ..fleet.snapshot_table import is_snapshot_table, read_snapshot_table
+    tables = [p for p in paths if not os.path.isdir(p) and is_snapshot_table(p)]
+    files = results_files([p for p in paths if p not in tables])
+    if not files and not tables:
+        found = [os.path.join(d, f) for p in paths if os.path.isdir(p)
+                 for d, _, fs in os.walk(p) for f in sorted(fs) if is_snapshot_table(f)][:1]
+        hint = f"; snapshot tables are given as files: {command} {found[0]} --database DB" if found else ""
+        print(f"{command}: no results files (*.estimates.h5) found{hint}", file=sys.stderr)
+        return None, []
+    if tables and not database:
+        print(f"{command}: {tables[0]}: a snapshot table records no database: give --database", file=sys.stderr)
+        return None, []
+    records, skipped = read_flights(files, engine_pattern)
+    if tables:
+        db = GainDatabase.open(database)
+        for t in tables:
+            records += read_snapshot_table(t, db, channel_map)
+    return records, skipped
+
+
 def database_of(records, given=None) -> str:
     """The gain database to diagnose with: ``given``, else the one every results file names
     (a UsageError naming them when they differ or name none)."""
@@ -191,25 +216,10 @@ def run_diagnose(args) -> int:
         except re.error as e:
             print(f"pwl fleet diagnose: --engine-pattern {args.engine_pattern!r}: {e}", file=sys.stderr)
             return 2
-    from ..fleet.snapshot_table import is_snapshot_table, read_snapshot_table
-    tables = [p for p in args.results if not os.path.isdir(p) and is_snapshot_table(p)]
-    files = results_files([p for p in args.results if p not in tables])
-    if not files and not tables:
-        found = [os.path.join(d, f) for p in args.results if os.path.isdir(p)
-                 for d, _, fs in os.walk(p) for f in sorted(fs) if is_snapshot_table(f)][:3]
-        hint = (f"; snapshot tables are given as files: pwl fleet diagnose {found[0]} --database DB"
-                if found else "")
-        print(f"pwl fleet diagnose: no results files (*.estimates.h5) found{hint}", file=sys.stderr)
+    records, skipped = read_inputs("pwl fleet diagnose", args.results, args.database, args.channel_map,
+                                   args.engine_pattern)
+    if records is None:
         return 2
-    if tables and not args.database:
-        print(f"pwl fleet diagnose: {tables[0]}: a snapshot table records no database: give --database",
-              file=sys.stderr)
-        return 2
-    records, skipped = read_flights(files, args.engine_pattern)
-    if tables:
-        db = GainDatabase.open(args.database)
-        for t in tables:
-            records += read_snapshot_table(t, db, args.channel_map)
     if not records:
         print("pwl fleet diagnose: no readable results files", file=sys.stderr)
         return 2

@@ -9,11 +9,16 @@ HELP = ("health trends (in percent) and fault diagnosis of one engine over its f
 
 def add_arguments(p):
     p.add_argument("results", nargs="+",
-                   help="results files (*.estimates.h5) of pwl run, or folders holding them (walked recursively)")
+                   help="results files (*.estimates.h5) of pwl run, or folders holding them (walked recursively), "
+                        "or snapshot tables (.csv, .parquet; they need --database; --engine picks one engine)")
     p.add_argument("--database", help="gain database (default: the one recorded in the results)")
+    p.add_argument("--channel-map", metavar="TOML",
+                   help="the snapshot tables' column names and units -> the model's (default: the tables' own)")
+    p.add_argument("--engine", action="append", metavar="SERIAL",
+                   help="only this engine (repeatable; default: every engine of the results)")
     p.add_argument("--fleet", action="append", metavar="RESULTS",
-                   help="results of the engine's fleet (a folder or a file; repeatable): judge the engine "
-                        "against the fleet's flight-to-flight scatter and normal wear, as pwl fleet "
+                   help="results of the engine's fleet (a folder, a file or a snapshot table; repeatable): judge "
+                        "the engine against the fleet's flight-to-flight scatter and normal wear, as pwl fleet "
                         "diagnose does (default: none, the engine against its own scatter)")
     p.add_argument("--plot", help="PNG file of the health trends, needs matplotlib (default: none; "
                                   "with several engines, one file each: NAME_ENGINE.png)")
@@ -27,18 +32,31 @@ def run(args) -> int:
     from ..database import GainDatabase
     from ..fleet.diagnose import copies, group_engines, mixed_engines, order_notes
     from ..fleet.trending import engine_trend, plot_trend
-    from .fleet import database_of, engine_flights, read_flights, results_files
+    from .fleet import database_of, engine_flights, read_inputs
     from .output import check_output, plot_or_note
 
     check_output(args.plot)
-    records, skipped = read_flights(results_files(args.results))
+    records, skipped = read_inputs("pwl trend", args.results, args.database, args.channel_map)
+    if records is None:
+        return 2
+    if args.engine:
+        have = {r.engine for r in records}
+        unknown = [e for e in args.engine if e not in have]
+        if unknown:
+            print(f"pwl trend: no engine {unknown[0]!r} in the results (engines: {', '.join(sorted(have)[:20])})",
+                  file=sys.stderr)
+            return 2
+        records = [r for r in records if r.engine in args.engine]
     if len(records) < 2:
         print("pwl trend: a trend needs at least two flights", file=sys.stderr)
         return 2
     db = GainDatabase.open(database_of(records, args.database))
     for line in copies(records) + mixed_engines(records) + order_notes(records):
         print(f"pwl: warning: {line}", file=sys.stderr)
-    fleet, fleet_skipped = read_flights(results_files(args.fleet)) if args.fleet else (None, [])
+    fleet, fleet_skipped = (read_inputs("pwl trend --fleet", args.fleet, db.path, args.channel_map) if args.fleet
+                            else (None, []))
+    if args.fleet and fleet is None:
+        return 2
     engines = group_engines(records)
     baselines = engine_flights(args.new_baseline, records)
     excluded = engine_flights(args.exclude, records, "--exclude")

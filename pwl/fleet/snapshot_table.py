@@ -127,7 +127,7 @@ def read_snapshot_table(source, db: GainDatabase, channel_map=None) -> list[Flig
     -------
     list of FlightRecord
         ``source`` ``<table>:row <k>`` (the flight's first row, 1-based under the header),
-        ``label`` ``<engine> flight <n>``, ``database`` the database's path and digest, ``mode``
+        ``label`` ``flight <n>`` (else the flight time), ``database`` the database's path and digest, ``mode``
         ``"table"``; each snapshot's windows are its rows (``samples`` the table's, else 1; ``se``
         NaN).
 
@@ -170,7 +170,7 @@ def read_snapshot_table(source, db: GainDatabase, channel_map=None) -> list[Flig
         snap = Snapshots(chans, list(db.names["p"]), rows.astype(np.float64), rows.astype(np.float64),
                          count[rows], X[rows], np.full((rows.size, len(chans)), np.nan),
                          np.isfinite(X[rows]).astype(np.float64), P[rows])
-        label = f"{e} flight {fl}" if fl else f"{e} {tm}"
+        label = f"flight {fl}" if fl else tm
         records.append(FlightRecord(e, (tm, fidx, _natural(label)), f"{path}:row {rows[0] + 2}", label, snap,
                                     db.path, db.digest, "table"))
     return records

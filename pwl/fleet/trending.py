@@ -176,6 +176,10 @@ def health_notes(es) -> list[str]:
     none = ~np.all(np.isfinite(es.h_hat), axis=1)
     if not none.any():
         return []
+    tables = sum(r.mode == "table" for r, n in zip(es.flights, none) if n)
+    if tables == none.sum():
+        return [f"no health estimate on {int(none.sum())} of {none.size} flights (snapshot tables carry no filter "
+                "health); the diagnosis uses the snapshots' deviations, which do not need them"]
     channels = sorted({c.split("@")[0] for c in es.channels}, key=[c.split("@")[0] for c in es.channels].index)
     absent = [c for c in channels if c not in es.input_names and
               not np.isfinite(es.D[np.ix_(none, [j for j, k in enumerate(es.channels) if k.split("@")[0] == c])]).any()]
