@@ -1376,10 +1376,9 @@ def _excursion(D: np.ndarray, Wt: np.ndarray, S: np.ndarray, bank: list[Hypothes
     """Whether the flight before the latest (row -2 of deviations D (n, m), whitening Wt, mean
     signatures S (m, ncol)) was off for that flight only: the flights before it (from row
     ``start``: the latest change found; an excursion on the flight after a fault's onset read as a
-    second fault) one state, it
-    significantly off them, the latest back (not significantly off them or within
-    :data:`EXCURSION_BACK` of the excursion, and significantly off it),
-    and no single sensor's bias explaining it (an intermittent sensor fault is its own finding,
+    second fault) one state, it significantly off them, the latest back (not significantly off
+    them or within :data:`EXCURSION_BACK` of the excursion, and significantly off it), and no
+    single sensor's bias explaining it (an intermittent sensor fault is its own finding,
     :func:`_episodes`). An engine flown with anti-ice or a customer bleed on, or a generator load
     changed, for one flight (the bleed and the load are no inputs of the model): taken for a
     fault, its reversal on the next flight confirmed it as a second one (a bleed of 0.005 instead
@@ -1446,9 +1445,9 @@ def _isolated(D: np.ndarray, j: int, Wt: np.ndarray, S: np.ndarray, bank: list[H
     if not (spread <= cut and alone) or _one_sensor(x, Wt, S, bank, cut * scale):
         return False
     if j == 0 and fleet is not None:
-        (mean, spread), Sigma = fleet
+        (mean, cov), Sigma = fleet
         def far(d, n):
-            return float((d - mean) @ np.linalg.solve(spread + Sigma / n, d - mean))
+            return float((d - mean) @ np.linalg.solve(cov + Sigma / n, d - mean))
         return far(D[0], 1) > far(b, others.shape[0])
     return True
 
@@ -1539,9 +1538,9 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
             ix = np.flatnonzero(keep)
             Sb = np.nanmean(es.S[rowsok][:, ix], axis=0)
             bank = [h for h in bank_all if _testable(h, Sb)]
-            D0, W0 = es.D[rowsok][:, ix], whitening(Sigma, ix)
+            D0, Wfleet = es.D[rowsok][:, ix], whitening(Sigma, ix)
             fleet = (level.at(Sb, ix), Sigma[np.ix_(ix, ix)]) if level is not None and first == 0 else None
-            off = [int(rowsok[j]) for j in range(rowsok.size - 2) if _isolated(D0, j, W0, Sb, bank, fleet)]
+            off = [int(rowsok[j]) for j in range(rowsok.size - 2) if _isolated(D0, j, Wfleet, Sb, bank, fleet)]
             if len(off) == 1:                    # one off the others (two: no one state to judge by)
                 off_once += off
                 rowsok = rowsok[rowsok != off[0]]
@@ -1563,15 +1562,15 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
             if offsets:
                 D = _calibrated(D, Sk, offsets, cfg.n_base + 1)
             toggled = sorted({es.columns.index(c) for o, c in seen if o >= number[first]})
-            W0 = Wt.copy()
+            Wfleet = Wt.copy()
             ratio = own_scatter(D, Wt, Sbar_all[:, toggled])
             Wt /= np.sqrt(ratio)
-            if not (rowsok.size >= 4 and rowsok[-2] == k - 1):
+            if not (rowsok.size >= 4 and rowsok[-2] == k - 1):    # two before, it, the latest
                 break
             # the flight before the latest judged against the engine's own scatter without it: in a
             # short history its own differences made that scatter (an excursion on the third
             # flight hid itself and read as a step on the flights after)
-            Wx = W0 / np.sqrt(own_scatter(np.delete(D, -2, axis=0), W0, Sbar_all[:, toggled]))
+            Wx = Wfleet / np.sqrt(own_scatter(np.delete(D, -2, axis=0), Wfleet, Sbar_all[:, toggled]))
             if _transition(D, Wx, regime[idx]):
                 changed_in_flight.append(k - 1)   # its windows straddle a change: not a state of the engine
             elif _excursion(D, Wx, Sbar_all, bank, _since(rows[:-1], number[rowsok])):
