@@ -395,7 +395,7 @@ def snapshot_rows(plan: FleetPlan, engine_index: int, flight_index: int, samples
     alt, Mach and Wf as the logs carry them, without noise) and the sensor fault applied as in
     :func:`simulate_flight`. Columns :data:`SNAPSHOT_KEYS`, then the sensors and Wf, model units;
     seeded by the flight's noise seed. Raises models.turbofan.PlantError if a trim fails."""
-    from .flight import CHANNEL_NOISE, CONTROL, TRA
+    from .flight import CHANNEL_NOISE, TRA, nfr_demand
 
     i, j = _check_index(plan, engine_index, flight_index)
     if isinstance(samples, bool) or not isinstance(samples, (int, np.integer)) or samples < 1:
@@ -410,11 +410,9 @@ def snapshot_rows(plan: FleetPlan, engine_index: int, flight_index: int, samples
     rng = np.random.default_rng([s["noise_seed"], 1])    # not the log's noise stream
     scale = 1.0 / np.sqrt(samples)
 
-    def nfr(tra):
-        return CONTROL["NfR_idle"] + tra / 100.0 * (CONTROL["NfR_max"] - CONTROL["NfR_idle"])
-
-    points = {"idle": (0.0, 0.0, nfr(TRA["idle"])), "takeoff": (0.0, TAKEOFF_MACH, nfr(s["tra_takeoff"])),
-              "cruise": (s["cruise_alt"], s["cruise_mach"], nfr(s["tra_cruise"]))}
+    points = {"idle": (0.0, 0.0, nfr_demand(TRA["idle"])),
+              "takeoff": (0.0, TAKEOFF_MACH, nfr_demand(s["tra_takeoff"])),
+              "cruise": (s["cruise_alt"], s["cruise_mach"], nfr_demand(s["tra_cruise"]))}
     c, active = plan.fault_class[i], fault_active(plan, i, j)
     rows = []
     for regime in regimes:

@@ -43,6 +43,12 @@ TRA = {"idle": 0.0, "takeoff": 89.5, "climb": 91.0, "cruise": 86.0, "approach": 
 CHANNEL_NOISE = {"T2": 0.001, "P2": 0.001}     # one-sigma fractions of the inlet sensors
 
 
+def nfr_demand(tra: float) -> float:
+    """The controller's corrected fan speed demand (% of design) at throttle ``tra`` (%):
+    idle + TRA/100 (max - idle) of :data:`CONTROL`."""
+    return CONTROL["NfR_idle"] + tra / 100.0 * (CONTROL["NfR_max"] - CONTROL["NfR_idle"])
+
+
 def _smooth(t, kt, kv):
     """Cosine-smoothed interpolation through knots (kt increasing, kv values)."""
     out = np.empty_like(t)
@@ -339,7 +345,7 @@ def simulate(model: Turbofan | None = None, profile=None, health=None, seed=0, n
     # the accel limit multiplies the max steady line, the decel limit the min one: pass one
     # table and fold the ratio of the two lines into the multipliers' table
     # initial trim at the first sample
-    nfr0 = c["NfR_idle"] + tra[0] / 100.0 * (c["NfR_max"] - c["NfR_idle"])
+    nfr0 = nfr_demand(tra[0])
     env0 = np.array([alt[0], mach[0], dTa[0]])
     t0 = m.trim(np.array([alt[0], mach[0], nfr0]), H[0], env0)
     v0 = m._trim_index[m._tkey(t0["x"], t0["u"], H[0], env0)][:6].copy()

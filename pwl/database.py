@@ -228,6 +228,28 @@ class GainDatabase:
         channels without one are absent)."""
         return {c: (lo, hi) for c, (_, lo, hi) in (self.log_channels or {}).items()}
 
+    def air_data(self) -> tuple | None:
+        """(altitude column, Mach column, altitude's scale to m, the inlet pressure's scale to Pa)
+        of the schedule channels (:func:`pwl.airdata.air_data_channels`), None without them."""
+        from .airdata import air_data_channels
+        return air_data_channels([c for c, _, _ in self.schedule], self.channel_units(),
+                                 self.correction.delta_channel if self.correction else None)
+
+    def inlet_from_air_data(self, S: np.ndarray) -> np.ndarray | None:
+        """(n,) the inlet pressure (the delta channel, in its unit) from the schedule channels S
+        (n, ns; :meth:`channel_units`) with the plant's inlet recovery (:meth:`Ambient.inlet_pressure`):
+        for a log or a snapshot table without it. None when the database cannot (no air data in
+        the schedule, or no recovery: built before 0.7.1)."""
+        if not self.derives_inlet():
+            return None
+        ja, jm, ka, kp = self.air_data()
+        return self.ambient.inlet_pressure(S[:, ja] * ka, S[:, jm]) / kp
+
+    def derives_inlet(self) -> bool:
+        """Whether :meth:`inlet_from_air_data` can give the inlet pressure."""
+        return (self.air_data() is not None and self.ambient is not None
+                and bool(np.isfinite(self.ambient.recovery)))
+
     def p_spans(self) -> np.ndarray:
         """(np,) span hi - lo of every scheduling variable's axis (trim grid, else dynamics grid,
         else 1): the scale of "steady" and of operating regimes."""

@@ -11,7 +11,7 @@ import warnings
 
 import numpy as np
 
-from .airdata import LAG_SIGMAS, LAG_WARN, air_data_channels, altitude_slip, disagree, inlet_pressure, lag, lag_sums
+from .airdata import LAG_SIGMAS, LAG_WARN, altitude_slip, disagree, inlet_pressure, lag, lag_sums
 from .database import AMBIENT_REACH, GainDatabase
 from .grid import Axis, Grid
 from .h5io import atomic_h5
@@ -24,7 +24,7 @@ from .results import LOG_ATTRS, Result, append_rows, init_result_file
 from .snapshots import SNAPSHOT_OUTPUTS, SnapshotAccumulator, SteadyConfig
 from .errors import PwlError, PwlWarning, UsageError
 from .tables import LAWS, AdaptiveTable, TableError, save_tables
-from .units import UNITS, likely_units
+from .units import UNITS, implausible_hint, likely_units
 
 OUTPUTS = ("x_hat", "q_hat", "h_hat", "y_hat", "residual", "z_hat")
 BIAS_PREFIX = "bias_"   # bias tables are stored as /tables/bias_<channel>
@@ -350,7 +350,7 @@ class Estimator:
         self.channel_units = db.channel_units()
         self.ranges = db.channel_ranges()
         self._limits = self._column_limits()
-        self._air = air_data_channels(self.pm.schedule_channels, self.channel_units, self.pm.delta_channel)
+        self._air = db.air_data()
         self._VT = np.ascontiguousarray(self.db.tuner["V_pinv"].T)
         default_settle = self.db.settling_time()
         self.settle = default_settle if settle is None else float(settle)
@@ -681,9 +681,8 @@ class Estimator:
         (:meth:`pwl.database.Ambient.inlet_pressure`; databases with the ambient terms). On the
         demo flights the estimates equal the logged P2's within 0.01 pt of health (full ram
         recovery, 1.0 instead of the plant's 0.995, read 2 pt)."""
-        pm, a = self.pm, self.db.ambient
-        return bool(pm.delta_channel and pm.delta_channel not in (log.channels or log.units)
-                    and self._air is not None and a is not None and np.isfinite(a.recovery))
+        delta = self.pm.delta_channel
+        return bool(delta and delta not in (log.channels or log.units) and self.db.derives_inlet())
 
     def dead_sensors(self, log: Log) -> list[str]:
         """The sensed outputs that a log has but that were NaN on every sample run since the last
@@ -836,13 +835,9 @@ class Estimator:
             med = float(self._typical(c))
             lo, hi = self.ranges.get(c, (-np.inf, np.inf))
             unit = self.channel_units.get(c, "")
-            guess = likely_units(med, unit, lo, hi)
-            why = (f"logged in {' or '.join(guess)}? Declare the unit (a 'name[unit]' column, a row of "
-                   "units or a channel map)") if guess else (
-                "infinite values or spikes: a failed sensor, or a logger's overflow?" if np.isinf(med) else
-                "the engine not running, or a failed sensor?" if med < lo else "a unit mistake or a failed sensor?")
             warnings.warn(f"{path}: channel {c!r}: {k} of {n} samples implausible, typically {med:.6g} "
-                          f"where {lo:.6g} to {hi:.6g} {unit} is plausible: {why}", PwlWarning, stacklevel=4)
+                          f"where {lo:.6g} to {hi:.6g} {unit} is plausible: {implausible_hint(med, unit, lo, hi)}",
+                          PwlWarning, stacklevel=4)
         k, low, high = self._envelope
         if k >= max(n, 1) / 100:
             axes = self.db.trim_grid.axes
@@ -931,9 +926,7 @@ class Estimator:
         if not pm.theta_channel:
             TD = np.ones((U.shape[0], 2))
         elif self.inlet_from_air_data(log):
-            ja, jm, ka, kp = self._air
-            TD = np.column_stack([take([pm.theta_channel])[:, 0],
-                                  db.ambient.inlet_pressure(S[:, ja] * ka, S[:, jm]) / kp])
+            TD = np.column_stack([take([pm.theta_channel])[:, 0], db.inlet_from_air_data(S)])
             TD /= [db.correction.T_std, db.correction.P_std]
         else:
             TD = take([pm.theta_channel, pm.delta_channel]) / [db.correction.T_std, db.correction.P_std]

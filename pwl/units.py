@@ -115,3 +115,16 @@ def likely_units(value: float, unit: str, lo: float, hi: float) -> list[str]:
     if dim == "rotational speed" and 0.0 < value <= 120.0:
         out.append("% of a reference speed (a channel map's scale)")
     return out
+
+
+def implausible_hint(value: float, unit: str, lo: float, hi: float) -> str:
+    """Why a channel's typical implausible ``value`` is outside its plausible [lo, hi] ``unit``:
+    the units it would be plausible in (:func:`likely_units`: a unit not declared), else
+    infinite values, a value below the range (the engine not running, a failed sensor) or above
+    it. The end of the warnings that name such a channel (a log's, a snapshot table's)."""
+    guess = likely_units(value, unit, lo, hi)
+    if guess:
+        return (f"logged in {' or '.join(guess)}? Declare the unit (a 'name[unit]' column, a row of units or a "
+                "channel map)")
+    return ("infinite values or spikes: a failed sensor, or a logger's overflow?" if np.isinf(value) else
+            "the engine not running, or a failed sensor?" if value < lo else "a unit mistake or a failed sensor?")

@@ -447,17 +447,14 @@ def noise_covariance(series: list[EngineSeries], floor: float) -> np.ndarray:
         mad = 1.4826 * np.median(np.abs(X - np.median(X, axis=0)), axis=0)
         md = np.sum((X / np.maximum(mad, 1e-300)) ** 2, axis=1)
         cut = stats.chi2.ppf(0.999, m)
+        def enough(keep):           # the channels' differences are correlated: keep at least 2 m
+            return keep if keep.sum() >= 2 * m else md <= np.sort(md)[2 * m - 1]
         keep = md < cut
-        for it in range(6):
-            if keep.sum() < 2 * m:        # the channels' differences are correlated: keep more
-                keep = md <= np.sort(md)[2 * m - 1]
-            if it == 5:
-                break
-            C = np.cov(X[keep].T, bias=False) / 2.0 + np.diag(base) * 1e-9
-            Ci = np.linalg.inv(2.0 * C)
-            md = np.einsum("ij,jk,ik->i", X, Ci, X)
+        for _ in range(5):
+            C = np.cov(X[enough(keep)].T, bias=False) / 2.0 + np.diag(base) * 1e-9
+            md = np.einsum("ij,jk,ik->i", X, np.linalg.inv(2.0 * C), X)
             keep = md < cut
-        C = np.cov(X[keep].T) / 2.0
+        C = np.cov(X[enough(keep)].T) / 2.0
         C = C / 0.99   # trimming at the 99.9 % point shrinks the estimate slightly
     elif partial and np.isfinite(np.concatenate(partial)).any():
         C = _shrunk_covariance(np.concatenate(partial)) / 2.0

@@ -40,12 +40,11 @@ import warnings
 
 import numpy as np
 
-from ..airdata import air_data_channels
 from ..database import GainDatabase
 from ..errors import PwlWarning
 from ..logs import LogError, _from_columns, _split_header, csv_frame, parquet_frame
 from ..snapshots import Snapshots
-from ..units import likely_units
+from ..units import implausible_hint
 from .diagnose import FlightRecord, _natural, _whole
 from .signatures import DiagnosisError
 
@@ -203,16 +202,12 @@ def _channels(path, columns: list[tuple], db: GainDatabase, channel_map) -> tupl
         if cmap is not None:
             log = cmap.apply(log)
         absent = [c for c in sensors if c not in log.channels]
-        air = air_data_channels(sched, db_units, inlet[1]) if inlet else None
-        derive = (bool(inlet) and inlet[1] not in log.channels and air is not None and db.ambient is not None
-                  and np.isfinite(db.ambient.recovery))
+        derive = bool(inlet) and inlet[1] not in log.channels and db.derives_inlet()
         X = log.require(chans, [db_units.get(c, "") for c in chans], absent_ok=absent + (inlet[1:] if derive else []))
     except LogError as e:
         raise DiagnosisError(str(e)) from None
     if derive:      # as the runtime does (Estimator.inlet_from_air_data)
-        ja, jm, ka, kp = air
-        X[:, chans.index(inlet[1])] = db.ambient.inlet_pressure(X[:, chans.index(sched[ja])] * ka,
-                                                                X[:, chans.index(sched[jm])]) / kp
+        X[:, chans.index(inlet[1])] = db.inlet_from_air_data(X[:, [chans.index(c) for c in sched]])
         warnings.warn(PwlWarning(f"{path}: no {inlet[1]!r} column: the inlet pressure is taken from pressure "
                                  "altitude and Mach with the inlet's pressure recovery of the database's build "
                                  f"({db.ambient.recovery:.4f})"), stacklevel=3)
@@ -267,12 +262,10 @@ def _plausible(path, X, chans, db: GainDatabase, declared: dict) -> np.ndarray:
             continue
         if bad.sum() >= max(1, col.size // 10):
             med = float(np.median(col[bad]))
-            guess = likely_units(med, units.get(c, ""), lo, hi)
-            why = (f"logged in {' or '.join(guess)}? Declare the unit (a 'name[unit]' column, a row of units or "
-                   "a channel map)") if guess else "a unit mistake or a failed sensor?"
             had = f" (declared {declared[c]})" if declared.get(c) else ""
             warnings.warn(PwlWarning(f"{path}: channel {c!r}{had}: {int(bad.sum())} of {col.size} snapshots "
                                      f"implausible, typically {med:.6g} where {lo:.6g} to {hi:.6g} "
-                                     f"{units.get(c, '')} is plausible: {why}; read as missing"), stacklevel=3)
+                                     f"{units.get(c, '')} is plausible: "
+                                     f"{implausible_hint(med, units.get(c, ''), lo, hi)}; read as missing"), stacklevel=3)
         col[bad] = np.nan
     return X
