@@ -1323,18 +1323,19 @@ TRANSITION_ALPHA = 1e-6
 TRANSITION_SPREAD = 0.3
 
 
-def _around(D: np.ndarray, Wt: np.ndarray, k: int, start: int = 0):
-    """The flight before the latest (row -2 of deviations D (n, m)) against the mean b of up to k
-    flights before it, from row ``start`` on: (x, y, b, scale, cut, one_state) with x, y rows -2
-    and -1 less b, whitened (Wt), scale the variance factor of a flight's difference from b, cut
-    the :data:`TRANSITION_ALPHA` chi-square quantile, one_state whether each of those k flights
-    lies within cut of b (:func:`_transition`, :func:`_excursion`)."""
-    before = D[max(start, D.shape[0] - 2 - k): -2]
+def _around(D: np.ndarray, Wt: np.ndarray, k: int, start: int = 0, run: int = 1):
+    """The ``run`` flights before the latest (rows -1-run .. -2 of deviations D (n, m)) against the
+    mean b of up to k flights before them, from row ``start`` on: (X, y, b, scale, cut, one_state)
+    with X (run, m) those rows and y the latest less b, whitened (Wt), scale the variance factor of
+    a flight's difference from b, cut the :data:`TRANSITION_ALPHA` chi-square quantile, one_state
+    whether each of those k flights lies within cut of b (:func:`_transition`, :func:`_excursion`)."""
+    end = D.shape[0] - 1 - run
+    before = D[max(start, end - k): end]
     b = before.mean(axis=0)
-    x, y = Wt @ (D[-2] - b), Wt @ (D[-1] - b)
-    cut = stats.chi2.ppf(1.0 - TRANSITION_ALPHA, x.size)
+    X, y = (D[end:-1] - b) @ Wt.T, Wt @ (D[-1] - b)
+    cut = stats.chi2.ppf(1.0 - TRANSITION_ALPHA, y.size)
     one_state = np.max(np.sum(((before - b) @ Wt.T) ** 2, axis=1)) <= cut
-    return x, y, b, 1.0 + 1.0 / before.shape[0], cut, one_state
+    return X, y, b, 1.0 + 1.0 / before.shape[0], cut, one_state
 
 
 def _transition(D: np.ndarray, Wt: np.ndarray, regime: np.ndarray) -> bool:
@@ -1351,7 +1352,8 @@ def _transition(D: np.ndarray, Wt: np.ndarray, regime: np.ndarray) -> bool:
     regimes = np.unique(regime)
     if D.shape[0] < 4 or regimes.size < 2:
         return False
-    x, y, b, scale, cut, one_state = _around(D, Wt, 3)
+    X, y, b, scale, cut, one_state = _around(D, Wt, 3)
+    x = X[0]
     if y @ y < cut * scale or not one_state:
         return False                              # no change to share out, or no one state before it
     Y = np.column_stack([Wt @ np.where(regime == r, D[-1] - b, 0.0) for r in regimes])
@@ -1369,27 +1371,37 @@ def _transition(D: np.ndarray, Wt: np.ndarray, regime: np.ndarray) -> bool:
 EXCURSION_BACK = 0.1
 
 
-def _excursion(D: np.ndarray, Wt: np.ndarray, S: np.ndarray, bank: list[Hypothesis], start: int = 0) -> bool:
-    """Whether the flight before the latest (row -2 of deviations D (n, m), whitening Wt, mean
-    signatures S (m, ncol)) was off for that flight only: the flights before it (from row
-    ``start``: the latest change found; an excursion on the flight after a fault's onset read as a
-    second fault) one state, it significantly off them, the latest back (not significantly off
-    them or within :data:`EXCURSION_BACK` of the excursion, and significantly off it), and no
-    single sensor's bias explaining it (an intermittent sensor fault is its own finding,
-    :func:`_episodes`). An engine flown with anti-ice or a customer bleed on, or a generator load
-    changed, for one flight (the bleed and the load are no inputs of the model): taken for a
-    fault, its reversal on the next flight confirmed it as a second one (a bleed of 0.005 instead
-    of 0.015 for one flight: 'sensor:Nc', then 'lpc+sensor:Wf' on every later flight), a flight
-    better than normal was a recovery and the baseline started on it, and a real fault found near
-    it took a fuel-meter bias in (probe fleets with one such flight on 7 engines: 50 false alarms,
-    44 on the normal flights after it). Components do not get better by themselves a flight later."""
-    if D.shape[0] < 4 or start > D.shape[0] - 3:
+def _excursion(D: np.ndarray, Wt: np.ndarray, S: np.ndarray, bank: list[Hypothesis], start: int = 0,
+               run: int = 1) -> bool:
+    """Whether the ``run`` flights before the latest (rows -1-run .. -2 of deviations D (n, m),
+    whitening Wt, mean signatures S (m, ncol)) were off for those flights only: the flights before
+    them (from row ``start``: the latest change found; an excursion on the flight after a fault's
+    onset read as a second fault) one state, each of them significantly off that state, the latest
+    back (not significantly off it or within :data:`EXCURSION_BACK` of the excursion, and
+    significantly off each of them), and no single sensor's bias explaining their mean (an
+    intermittent sensor fault is its own finding, :func:`_episodes`). An engine flown with
+    anti-ice or a customer bleed on, or a generator load changed, for a flight or two (the bleed
+    and the load are no inputs of the model): taken for a fault, its reversal on the next flight
+    confirmed it as a second one (a bleed of 0.005 instead of 0.015 for one flight: 'sensor:Nc',
+    then 'lpc+sensor:Wf' on every later flight), a flight better than normal was a recovery and
+    the baseline started on it, and a real fault found near it took a fuel-meter bias in (probe
+    fleets with one such flight on 7 engines: 50 false alarms, 44 on the normal flights after it;
+    two such flights in a row on each of 40 healthy engines of a snapshot table: 351 false alarms
+    after them, a step found on the first and its 'return' read as another fault). Components do
+    not get better by themselves a flight later."""
+    if D.shape[0] < 3 + run or D.shape[0] - 1 - run - start < run:
+        return False              # as many flights before as in the run (one state to judge it by)
+    X, y, _, scale, cut, one_state = _around(D, Wt, 4, start, run)
+    off = np.sum(X ** 2, axis=1)
+    back = y @ y <= max(cut * scale, EXCURSION_BACK ** 2 * off.min())
+    if not (off.min() > cut * scale and back and np.sum((X - y) ** 2, axis=1).min() > 2.0 * cut and one_state):
         return False
-    x, y, _, scale, cut, one_state = _around(D, Wt, 4, start)
-    back = y @ y <= max(cut * scale, EXCURSION_BACK ** 2 * (x @ x))
-    if not (x @ x > cut * scale and back and (x - y) @ (x - y) > 2.0 * cut and one_state):
-        return False
-    return not _one_sensor(x, Wt, S, bank, cut * scale)
+    return not _one_sensor(X.mean(axis=0), Wt, S, bank, cut * scale)
+
+
+#: the most flights in a row an excursion may last (:func:`_excursion`): longer is a state of the
+#: engine (a fault repaired, an operational change), judged as such
+EXCURSION_FLIGHTS = 2
 
 
 def _one_sensor(x: np.ndarray, Wt: np.ndarray, S: np.ndarray, bank: list[Hypothesis], cut: float) -> bool:
@@ -1513,18 +1525,19 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
         keep = usable(first)
         dec.missing = _missing(es.channels, present[k])
         rowsok = np.flatnonzero(np.all(upto[:, keep], axis=1))
-        if undo is not None and undo[0] == k - 1:
-            # the recovery the flight before started a new baseline on: back on the next flight
-            # to the state before it, it was that flight's excursion (a lighter load for one
-            # flight), not maintenance: the old baseline again, that flight left out
+        run = k - undo[0] if undo is not None else 0
+        if 1 <= run <= EXCURSION_FLIGHTS:
+            # the recovery a flight or two before started a new baseline on: back on this flight
+            # to the state before it, it was an excursion (a lighter load for a flight or two),
+            # not maintenance: the old baseline again, those flights left out
             was = rowsok[(rowsok >= undo[1]) & ~np.isin(rowsok, changed_in_flight + off_once)]
-            if was.size > cfg.n_base + 2 and was[-2] == k - 1:
+            if was.size > cfg.n_base + 1 + run and np.array_equal(was[-1 - run: -1], np.arange(k - run, k)):
                 ix = np.flatnonzero(keep)
                 Sb = np.nanmean(es.S[was][:, ix], axis=0)
                 if _excursion(es.D[was][:, ix], whitening(Sigma, ix), Sb,
-                              [h for h in bank_all if _testable(h, Sb)]):
+                              [h for h in bank_all if _testable(h, Sb)], run=run):
                     first, found = undo[1], undo[2]
-                    off_once.append(k - 1)
+                    off_once += list(range(k - run, k))
                     keep = usable(first)
                     rowsok = np.flatnonzero(np.all(upto[:, keep], axis=1))
         rowsok = rowsok[(rowsok >= first) & ~np.isin(rowsok, changed_in_flight + off_once)]
@@ -1564,31 +1577,45 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
             Wt /= np.sqrt(ratio)
             if not (rowsok.size >= 4 and rowsok[-2] == k - 1):    # two before, it, the latest
                 break
-            # the flight before the latest judged against the engine's own scatter without it: in a
-            # short history its own differences made that scatter (an excursion on the third
-            # flight hid itself and read as a step on the flights after)
-            Wx = Wfleet / np.sqrt(own_scatter(np.delete(D, -2, axis=0), Wfleet, Sbar_all[:, toggled]))
-            if _transition(D, Wx, regime[idx]):
+            # the flight (or the run of flights) before the latest judged against the engine's own
+            # scatter without it: in a short history its own differences made that scatter (an
+            # excursion on the third flight hid itself and read as a step on the flights after)
+            def scatter_without(run):
+                lo = D.shape[0] - 1 - run
+                return Wfleet / np.sqrt(own_scatter(np.delete(D, np.arange(lo, lo + run), axis=0), Wfleet,
+                                                    Sbar_all[:, toggled]))
+            if _transition(D, scatter_without(1), regime[idx]):
                 changed_in_flight.append(k - 1)   # its windows straddle a change: not a state of the engine
-            elif _excursion(D, Wx, Sbar_all, bank, _since(rows[:-1], number[rowsok])):
-                off_once.append(k - 1)            # off for that flight only: not a state of the engine
-            else:
+                rowsok = np.delete(rowsok, -2)
+                continue
+            run = next((r for r in range(1, EXCURSION_FLIGHTS + 1)
+                        if rowsok.size >= 3 + r and rowsok[-1 - r] == k - r     # in a row, a flight before
+                        and _excursion(D, scatter_without(r), Sbar_all, bank, _since(rows[: k - r], number[rowsok]), r)),
+                       0)
+            if not run:
                 break
-            rowsok = np.delete(rowsok, -2)
+            # off for those flights only: not a state of the engine, nor what was found on them
+            off_once += list(range(k - run, k))
+            there = set(number[k - run: k].tolist())
+            found = [f for f in found if f.onset not in there]
+            seen = [(o, c) for o, c in seen if o not in there]
+            rowsok = np.delete(rowsok, np.arange(rowsok.size - 1 - run, rowsok.size - 1))
         own = max(own, (ratio, int(number[k])), key=lambda x: x[0])
         mine = [f for f in found if f.onset >= number[first]]
         known = _known(mine, t[0], Sbar_all, es.columns) + [c for c in rolled if t[0] < c.onset <= t[-1]]
 
-        def decide(dec, known):
-            """dec decided on the tests measured from ``known``; the number of tests (0: none)."""
-            stages = _stages(D, Wt, Sbar_all, t, bank, cfg, wear and wear.at(Sbar_all, idx), known,
+        def decide(dec, known, use=None):
+            """dec decided on the tests of the flights ``use`` (bool over rowsok; default every one)
+            measured from ``known``; the number of tests (0: none)."""
+            u = np.ones(t.size, bool) if use is None else use
+            stages = _stages(D[u], Wt, Sbar_all, t[u], bank, cfg, wear and wear.at(Sbar_all, idx), known,
                              level.at(Sbar_all, idx) if level and first == 0 else None)
             every = [f for stage in stages for _, fits in stage for f in fits]
             if every:
                 p_all = stats.chi2.sf([f[2] for f in every], [len(bank[f[1]].columns) for f in every]) * len(every)
                 dec.p_value = min(float(p_all.min()), 1.0)
                 for stage in stages:
-                    if stage and _decide(dec, stage, bank, Sbar_all, t, es, rowsok, len(every), cfg):
+                    if stage and _decide(dec, stage, bank, Sbar_all, t[u], es, rowsok[u], len(every), cfg):
                         break
             return len(every)
         n_tests = decide(dec, known)
@@ -1645,9 +1672,25 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
             found = [f for f in found if not _same_trend(f, dec)] + [copy(dec)]
         if finding[len(rows)] is not None and finding[len(rows)][2] == "step" and dec.cls.startswith("sensor:"):
             seen.append((dec.onset, dec.cls))
-        _episodes(dec, known, seen, es, rowsok, D, Wt, Sbar_all, t, bank, cfg)
+        biased = _episodes(dec, known, seen, es, rowsok, D, Wt, Sbar_all, t, bank, cfg)
         mine = [f for f in found if f.onset >= number[first]]
         dec.earlier = _earlier(dec, mine)
+        if biased.size and not dec.earlier:
+            # a sensor's bias gone, no fault confirmed before it: the engine's own state, the
+            # flights it read biased on left out (a fault found on the flight before a one-flight
+            # sensor glitch was never confirmed, the glitch being the next flight's decision: its
+            # later flights read 'cleared', not detected). As for a fault confirmed before it
+            # (:func:`_standing`): named in ``earlier`` on the flight it cleared on, the row after
+            state = Decision(es.engine, int(number[k]), r.label, r.source, "ok")
+            state.missing = dec.missing
+            episode = set(biased.tolist()) | {dec.onset}          # its steps on and off
+            decide(state, [c for c in known if not (c.cls == dec.cls and c.onset in episode)], ~np.isin(t, biased))
+            if state.detected and (state.cls != dec.cls or state.onset < biased.min()):
+                # (the same sensor: a smaller bias from before the episode)
+                if dec.onset < dec.flight:
+                    dec, state.earlier = state, _earlier(state, mine)
+                else:
+                    dec.earlier = f"{state.cls}@{state.onset:g}"
         rows.append(_standing(dec, mine) if dec.status == "cleared" and dec.earlier and dec.onset < dec.flight else dec)
     if own[0] > OWN_WARN:
         warnings.warn(PwlWarning(f"engine {es.engine}: judged against its own flight-to-flight scatter, "
@@ -1795,7 +1838,7 @@ EPISODE_SEPARATION = 8.0
 
 
 def _episodes(dec: Decision, found: list, seen: list, es: EngineSeries, rowsok, D, Wt, S, t, bank,
-              cfg: DiagnosisConfig) -> None:
+              cfg: DiagnosisConfig) -> np.ndarray:
     """A sensor bias that goes away, or comes and goes: relabel a detected step of a sensor class
     by that sensor's readings against its **baseline**, the flights before the first step of it
     seen (``seen``: (onset, class) of every sensor step detected, confirmed or not: a one-flight
@@ -1818,9 +1861,13 @@ def _episodes(dec: Decision, found: list, seen: list, es: EngineSeries, rowsok, 
     intermittent T48 (+38 K on flights 4, 6, 9-13, 20, 21, 23; probe fleet C) whose one-flight
     episodes were not confirmed had its first step found at 7, the bias going off, read as a
     -34 K bias going on; flights 9-13 (on) came out ``cleared``, 14-19 (off) a -51..-55 K
-    intermittent."""
+    intermittent.
+
+    Returns the flight numbers the sensor read biased on when its bias is gone (``cleared``),
+    else none."""
+    none = np.zeros(0)
     if not (dec.detected and dec.kind == "step" and dec.cls.startswith("sensor:")):
-        return
+        return none
     begin = min([o for o, c in seen if c == dec.cls and o >= t[0]] + [dec.onset])
     start = max([t[0]] + [k.onset for k in found if k.cls != dec.cls and k.onset < begin])
     use = t >= start
@@ -1828,7 +1875,7 @@ def _episodes(dec: Decision, found: list, seen: list, es: EngineSeries, rowsok, 
     n, m = Y.shape
     after = tt >= begin
     if after.all():
-        return
+        return none
     col = es.columns.index(dec.cls)
     cols = {h.name: [c for c in h.columns if c != col] for h in bank}
     w = Wt @ S[:, col]
@@ -1863,7 +1910,7 @@ def _episodes(dec: Decision, found: list, seen: list, es: EngineSeries, rowsok, 
         dec.detected, dec.kind, dec.status = 0, "cleared", "cleared"
         dec.onset = int(ta[unit == units[last + 1]].min())
     elif ta[run].min() == dec.onset:       # the step found turned it on: its fit stands
-        return
+        return none
     # its size, with the flights it was off on in the baseline (and in its wear line)
     ison = np.isin(unit, units[on])
     size = float(readings(np.r_[np.zeros(n - after.sum(), bool), ison])[run[ison]].mean())
@@ -1872,6 +1919,7 @@ def _episodes(dec: Decision, found: list, seen: list, es: EngineSeries, rowsok, 
     fit[dec.cls] = f"{size:+.5f}"
     dec.detail = " ".join(f"{k}={v}" for k, v in fit.items())
     dec.magnitude, dec.magnitude_std, dec.bias = _sensor_size(es, rowsok, col, size, std)
+    return ta[ison] if dec.kind == "cleared" else none
 
 
 def recoveries(decisions: list[Decision]) -> list[Decision]:
