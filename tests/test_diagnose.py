@@ -901,3 +901,18 @@ def test_an_engine_whose_first_flights_have_no_snapshot_starts_its_baseline_afte
     for r in rows[11:]:
         assert r.detected and r.cls == "fan" and r.onset == 11, r
         assert r.magnitude == pytest.approx(-0.02, abs=0.004)
+
+
+def test_a_long_history_looks_for_a_new_change_in_its_latest_flights():
+    """A history of 70 flights with an HPT loss from 20 and a fan loss from 60, looked for in the
+    latest 15 flights only (``DiagnosisConfig.window``): the rows equal those of a search over
+    every flight (the HPT loss found within 15 flights of its onset, a nuisance after), each fault
+    from its onset with its class; the window bounds what a flight's tests cost."""
+    D, S = stepped(31, 70, [("hpt", [-0.02, 0.01], 20), ("fan", [-0.02, -0.01], 60)])
+    Sigma = np.eye(6) * 1e-6
+    full = diagnose_engine(series(D, S), Sigma, DiagnosisConfig(eps=0.0, curvature=0.0, window=1000))
+    short = diagnose_engine(series(D, S), Sigma, DiagnosisConfig(eps=0.0, curvature=0.0, window=15))
+    assert [(r.detected, r.cls, r.kind, r.onset) for r in short] == [(r.detected, r.cls, r.kind, r.onset) for r in full]
+    assert not any(r.detected for r in short[:20])
+    assert all(r.detected and r.cls == "hpt" and r.onset == 20 for r in short[20:60])
+    assert all(r.detected and r.cls == "fan" and r.onset == 60 and "hpt@20" in r.earlier for r in short[60:])

@@ -103,7 +103,10 @@ class DiagnosisConfig:
     wear line is a nuisance of the step tests (normal wear is not a fault); rollout: a change of
     the whole fleet may be rolled out over this many consecutive flights (:func:`common_steps`);
     level_floor: the engine-to-engine spread of what health does not explain in a baseline level is
-    taken as at least this many times each channel's flight-to-flight scatter (:func:`level_reference`)."""
+    taken as at least this many times each channel's flight-to-flight scatter (:func:`level_reference`);
+    window: a new change is looked for at the latest ``window`` flights (a change further back that
+    no test found in as many flights after it is below what the data show; a flight's tests cost
+    in proportion, and a history of hundreds of flights took seconds a flight)."""
 
     alpha: float = 1e-3
     kappa: float = 6.0
@@ -120,6 +123,7 @@ class DiagnosisConfig:
     wear: bool = True
     rollout: int = 4
     level_floor: float = 2.0
+    window: int = 100
 
 
 @dataclass
@@ -1017,15 +1021,16 @@ def _decide(dec, stage, bank, S, t, es, rowsok, n_tests, cfg) -> bool:
     by_point = {}
     for shape, fits in stage:
         for f in fits:
-            if not _curvature(bank[f[1]], f[3], S, es.columns):
-                by_point.setdefault((shape, f[0]), []).append(f)
-    if not by_point:
-        return False
+            by_point.setdefault((shape, f[0]), []).append(f)
     # a drift whose efficiencies all rise is no engine's: components do not get better by
     # themselves, a flight at a time (a loss from the second flight fitted a step at 1 or, as
-    # well with the wear line, an LPC "drift" of +1.5 %/flight from 2); the next change point
+    # well with the wear line, an LPC "drift" of +1.5 %/flight from 2); the next change point.
+    # The pairs that are a component's curvature are left out at the points tried only (testing
+    # every fit took a fifth of a long history's time)
     for shape, tau in sorted(by_point, key=lambda k: -by_point[k][0][5]):
-        here = by_point[(shape, tau)]
+        here = [f for f in by_point[(shape, tau)] if not _curvature(bank[f[1]], f[3], S, es.columns)]
+        if not here:
+            continue
         _, hi, T, th, cov, _ = max(here, key=lambda f: f[2] - bank[f[1]].cost(cfg))
         effs = [v for c, v in zip(bank[hi].columns, th) if es.columns[c].endswith("_eff")]
         if not (shape == "ramp" and effs and min(effs) > 0):
@@ -1220,7 +1225,7 @@ def _stages(D, Wt, S, t, bank, cfg, wear, known, level=None):
     fit = partial(_fit_changes, D, Wt, S, t, bank=bank, cfg=cfg, trend=cfg.wear, **_nuisance(known))
     found = [k for k in known if k.shape != "fleet"]
     if found:   # a new change after the changes found, measured from them; else the last one again
-        last, new = found[-1], t[t > found[-1].onset]
+        last, new = found[-1], t[t > found[-1].onset][-cfg.window:]
         again = fit(np.array([last.onset]), last.shape, **_nuisance([k for k in known if k is not last]))
         return [[("step", fit(new, "step")), ("ramp", fit(new, "ramp"))], [(last.shape, again)]]
     stages = _first_stages(fit, D, Wt, S, t, bank, cfg, wear, _nuisance(known)["steps"])
@@ -1276,7 +1281,8 @@ def _first_stages(fit, D, Wt, S, t, bank, cfg, wear, fleet):
     """Stages 1 and 2 of :func:`_stages` on an engine without a fault found (``fleet``: the
     flight numbers of its steps of a fleet-wide change, nuisances of ``fit`` too)."""
     # 1. a step or a drift that starts after the first flights, off the engine's wear line
-    stage1 = [("step", fit(t[1:], "step")), ("ramp", fit(t[1:], "ramp"))]
+    taus = t[1:][-cfg.window:]
+    stage1 = [("step", fit(taus, "step")), ("ramp", fit(taus, "ramp"))]
     # 2. with the wear line as nuisance, wear faster than normal is tested on its own: the
     #    engine's whole-history rate (a ramp from the first flight, level only), against the
     #    fleet's normal wear when there is a fleet
