@@ -167,10 +167,16 @@ def test_pwl_fleet_diagnose_takes_a_table(tmp_path, db, capsys):
     text = capsys.readouterr().out
     assert "engine ESN001: 6 flights" in text and "snapshot tables carry no filter health" in text
     assert main(["trend", table, "--database", demo_paths()[0], "--engine", "ESN404"]) == 2
-    assert main(["fleet", "diagnose", table, "--database", demo_paths()[0], "-o", out]) == 0
+    assert main(["fleet", "diagnose", table, "--database", demo_paths()[0], "-o", out, "-j", "1"]) == 0
     with open(out) as fh:
-        assert len(list(csv.DictReader(fh))) == 4 * 6
+        serial = list(csv.DictReader(fh))
+    assert len(serial) == 4 * 6
     assert os.path.exists(tmp_path / "F" / "truth.csv")
+    # two processes, an engine each at a time: the same rows, in the same order, and progress shown
+    assert main(["fleet", "diagnose", table, "--database", demo_paths()[0], "-o", out, "-j", "2"]) == 0
+    assert "engines" in capsys.readouterr().err
+    with open(out) as fh:
+        assert list(csv.DictReader(fh)) == serial
 
 
 def test_a_table_without_the_inlet_pressure_takes_it_from_air_data(tmp_path, db, plan):

@@ -52,6 +52,8 @@ def add_arguments(p):
                         "(default: tested)")
     d.add_argument("--new-baseline", metavar="ENGINE:FLIGHT", action="append", default=[], help=NEW_BASELINE_HELP)
     d.add_argument("--exclude", metavar="ENGINE:FLIGHT", action="append", default=[], help=EXCLUDE_HELP)
+    d.add_argument("-j", "--workers", type=int, default=os.cpu_count() or 1,
+                   help="engines diagnosed at once, in as many processes (default: the number of cores)")
     d.set_defaults(_step=run_diagnose)
 
     c = sub.add_parser("score", help="score a diagnosis CSV against a fleet's truth.csv",
@@ -236,7 +238,14 @@ def run_diagnose(args) -> int:
     baselines = engine_flights(args.new_baseline, records)
     excluded = engine_flights(args.exclude, records, "--exclude")
     db = GainDatabase.open(db_path)
-    rows, Sigma, channels, centers, wear = diagnose_fleet(records, db, cfg, baselines, excluded)
+    from linearize.build import Progress
+    from ..workers import SerialExecutor, process_pool
+    n_engines = len({r.engine for r in records})
+    bar = Progress("engines", n_engines)
+    workers = max(1, min(args.workers, n_engines))
+    with (process_pool(workers) if workers > 1 else SerialExecutor()) as executor:
+        rows, Sigma, channels, centers, wear = diagnose_fleet(records, db, cfg, baselines, excluded, executor,
+                                                              lambda done, total: bar.update(done))
     write_diagnosis(rows, args.output)
     engines = sorted({r.engine for r in rows})
     latest = {r.engine: r for r in rows}            # rows are in time order per engine

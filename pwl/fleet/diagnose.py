@@ -68,6 +68,7 @@ import csv
 import os
 import re
 import warnings
+from concurrent.futures import as_completed
 from copy import copy
 from dataclasses import dataclass, field, replace
 from functools import lru_cache, partial
@@ -83,6 +84,7 @@ from ..formats import RESULTS, check
 from ..h5io import SealError, attr_str, check_seal
 from .signatures import DiagnosisError, Signatures
 from ..snapshots import Snapshots
+from ..workers import SerialExecutor
 
 
 @dataclass(frozen=True)
@@ -939,31 +941,43 @@ def _fit_changes(D, Wt, S, t, taus, shape, bank, cfg, trend=False, steps=(), spr
     known = np.sum((eps * np.vstack(sizes)) ** 2, axis=0)
     within = _within(tuple((h.name, tuple(h.columns)) for h in bank))
     wnorm2 = float(np.linalg.norm(Wt, 2)) ** 2 if within else 0.0
-    for tau in taus:
-        f = _shape(t, tau, shape)
-        g = f - X @ (Xp @ f)                   # the nuisance (level, wear line) projected out
-        g2 = float(g @ g)
-        if g2 < 1e-9 or n < 2:
-            continue
-        delta = D.T @ g / g2                   # the observed change (per unit of f), relative
-        E = g2 * float(np.sum((Wt @ delta) ** 2))
-        Cw = np.eye(D.shape[1]) / g2 + (Wt * ((eps * delta) ** 2 + known)) @ Wt.T
-        if spread is not None:
-            Cw += Wt @ spread @ Wt.T
-        Lw = np.linalg.cholesky(Cw)
-        v = np.linalg.solve(Lw, Wt @ delta)    # whitened change estimate, N(0, I) if none
-        Sw = np.linalg.solve(Lw, Wt @ S)
-        fits = {}
-        for his, cols in groups:               # the hypotheses of one rank at once
-            A = Sw[:, cols].transpose(1, 0, 2)                 # (hypotheses, m, rank)
-            G = A.transpose(0, 2, 1) @ A
-            ok = np.linalg.cond(G) < 1e12
-            Gi = np.linalg.inv(np.where(ok[:, None, None], G, np.eye(G.shape[1])))
-            b = A.transpose(0, 2, 1) @ v
-            th = (Gi @ b[:, :, None])[:, :, 0]
-            T = np.sum(b * th, axis=1)
-            fits.update((hi, (tau, hi, float(T[i]), th[i], Gi[i], E)) for i, hi in enumerate(his) if ok[i])
-        curved = _curved(fits, within, bank, S, Wt, Cw, delta, g2 * wnorm2, cfg)
+    # every change point at once (stacks over the change points; the fits are per point)
+    taus = np.asarray(taus, dtype=float)
+    if n < 2 or taus.size == 0:
+        return out
+    F = _shape(t[:, None], taus[None, :], shape)           # (n, K)
+    G = F - X @ (Xp @ F)                                  # the nuisance (level, wear line) projected out
+    g2 = np.sum(G * G, axis=0)
+    use = g2 >= 1e-9
+    taus, G, g2 = taus[use], G[:, use], g2[use]
+    if taus.size == 0:
+        return out
+    delta = (D.T @ G / g2).T                              # (K, m) the observed change (per unit of f), relative
+    WD = delta @ Wt.T                                     # whitened
+    E = g2 * np.sum(WD * WD, axis=1)
+    m = D.shape[1]
+    Cw = np.eye(m)[None] / g2[:, None, None] + (Wt[None] * ((eps * delta) ** 2 + known)[:, None, :]) @ Wt.T
+    if spread is not None:
+        Cw += Wt @ spread @ Wt.T
+    Lw = np.linalg.cholesky(Cw)
+    v = np.linalg.solve(Lw, WD[:, :, None])[:, :, 0]      # whitened change estimate, N(0, I) if none
+    Sw = np.linalg.solve(Lw, np.broadcast_to(Wt @ S, (taus.size,) + S.shape))
+    per = [dict() for _ in taus]
+    for his, cols in groups:                              # the hypotheses of one rank at once
+        A = Sw[:, :, cols].transpose(0, 2, 1, 3)          # (K, hypotheses, m, rank)
+        At = A.transpose(0, 1, 3, 2)
+        GA = At @ A
+        w = np.linalg.eigvalsh(GA)                       # (its condition number below 1e12)
+        ok = w[..., 0] > 1e-12 * w[..., -1]
+        Gi = np.linalg.inv(np.where(ok[..., None, None], GA, np.eye(GA.shape[-1])))
+        b = (At @ v[:, None, :, None])[..., 0]
+        th = (Gi @ b[..., None])[..., 0]
+        T = np.sum(b * th, axis=-1)
+        for k, tau in enumerate(taus):
+            per[k].update((hi, (tau, hi, float(T[k, i]), th[k, i], Gi[k, i], float(E[k])))
+                          for i, hi in enumerate(his) if ok[k, i])
+    for k, fits in enumerate(per):
+        curved = _curved(fits, within, bank, S, Wt, Cw[k], delta[k], g2[k] * wnorm2, cfg)
         out += [f for hi, f in fits.items() if hi not in curved]
     return out
 
@@ -2005,13 +2019,15 @@ def prepare(records: list[FlightRecord], db: GainDatabase) -> tuple[Signatures, 
 
 def diagnose_fleet(records: list[FlightRecord], db: GainDatabase,
                    cfg: DiagnosisConfig = DiagnosisConfig(), new_baselines: dict | None = None,
-                   excluded: dict | None = None) -> tuple:
+                   excluded: dict | None = None, executor=None, progress=None) -> tuple:
     """Every engine of ``records``; returns (decisions, Sigma, deviation channel names, regime
     centres (R, np), the fleet's normal wear (:class:`FleetNorm`, or None)). Each engine is
     judged against the fleet's scatter, normal wear and normal baseline level.
     ``new_baselines``: engine -> flight numbers where it starts a new baseline
     (:func:`diagnose_engine`); ``excluded``: engine -> flight numbers left out (:func:`excluding`;
-    their rows say ``excluded``)."""
+    their rows say ``excluded``). ``executor``: where the engines are diagnosed, one task each
+    (a process pool, :func:`pwl.workers.process_pool`; default: here, one after the other);
+    ``progress(done, total)`` is called as engines finish."""
     sig, centers = prepare(records, db)
     excluded = excluded or {}
     series = [excluding(engine_series(v, sig, len(centers)), excluded.get(e, ()))
@@ -2019,9 +2035,13 @@ def diagnose_fleet(records: list[FlightRecord], db: GainDatabase,
     Sigma = noise_covariance(series, cfg.floor)
     from .trending import detail_units
     wear, level = fleet_norms(series, Sigma, cfg, detail_units(db))
-    rows = []
-    for es in series:
-        rows += diagnose_engine(es, Sigma, cfg, wear, level, tuple((new_baselines or {}).get(es.engine, ())))
+    executor = executor or SerialExecutor()
+    tasks = [executor.submit(diagnose_engine, es, Sigma, cfg, wear, level,
+                             tuple((new_baselines or {}).get(es.engine, ()))) for es in series]
+    for done, _ in enumerate(as_completed(tasks), 1):
+        if progress:
+            progress(done, len(tasks))
+    rows = [d for task in tasks for d in task.result()]
     return mark_excluded(rows, excluded), Sigma, series[0].channels, centers, wear
 
 
