@@ -1332,8 +1332,8 @@ def _component_wear(fit, bank, taus, shape) -> list:
     if not every:              # fewer channels than health parameters: no such comparison
         return fits
     T_all = every[0][2]
-    return [f for f in fits if "sensor:" not in bank[f[1]].name or T_all - f[2] <
-            stats.chi2.ppf(1 - SENSOR_TREND_LEVEL, max(1, len(comps) - len(bank[f[1]].columns)))]
+    cut = {r: stats.chi2.ppf(1 - SENSOR_TREND_LEVEL, max(1, len(comps) - r)) for r in {len(h.columns) for h in bank}}
+    return [f for f in fits if "sensor:" not in bank[f[1]].name or T_all - f[2] < cut[len(bank[f[1]].columns)]]
 
 
 #: a flight is a transition (:func:`_transition`) when its regimes differ in how far they have
