@@ -1608,10 +1608,12 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
                 changed_in_flight.append(k - 1)   # its windows straddle a change: not a state of the engine
                 rowsok = np.delete(rowsok, -2)
                 continue
-            run = next((r for r in range(1, EXCURSION_FLIGHTS + 1)
-                        if rowsok.size >= 3 + r and rowsok[-1 - r] == k - r     # in a row, a flight before
-                        and _excursion(D, scatter_without(r), Sbar_all, bank, _since(rows[: k - r], number[rowsok]), r)),
-                       0)
+            def excursion(r):
+                """Whether the r flights before the latest (in a row, with flights before) were off
+                for those flights only (:func:`_excursion`)."""
+                return (rowsok.size >= 3 + r and rowsok[-1 - r] == k - r and
+                        _excursion(D, scatter_without(r), Sbar_all, bank, _since(rows[: k - r], number[rowsok]), r))
+            run = next((r for r in range(1, EXCURSION_FLIGHTS + 1) if excursion(r)), 0)
             if not run:
                 break
             # off for those flights only: not a state of the engine, nor what was found on them
