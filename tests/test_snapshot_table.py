@@ -265,13 +265,14 @@ def test_flights_off_in_a_row_and_a_glitch_after_a_fault(tmp_path, db, plan):
             (e, [(d.flight, d.status, d.cls, d.kind, d.onset) for d in after])
 
 
-def test_every_engine_off_on_one_flight_is_the_fleets_excursion(tmp_path, db, plan):
+def test_every_engine_off_on_one_flight_is_the_fleets_excursion(tmp_path, db, plan, recwarn):
     """Every engine's snapshots of flight 6 off alike (a ground station's processing, a fleet-wide
     data fault: every channel 1.5-2 % off): two fleet-wide changes that cancel, at 6 and 7, are
     one excursion of the fleet, and flight 6 is left out of every engine's tests. No healthy
     engine alarms, and every faulty one is found with its class and onset from the flight after
     its onset (before: the two fleet-wide steps were nuisances of every test, a fault from before
-    them was measured from the flights before them only, one beginning with them was lost)."""
+    them was measured from the flights before them only, one beginning with them was lost). One
+    warning says so (before: two, of fleet-wide changes at 6 and at 7)."""
     rows = table_rows(plan)
     sensors = ("Nc", "T24", "Ps30", "T30", "T48", "P50", "P15", "Wf")
     pattern = dict(zip(sensors, (1.02, 0.98, 1.015, 1.02, 0.985, 1.02, 0.98, 1.015)))
@@ -290,3 +291,5 @@ def test_every_engine_off_on_one_flight_is_the_fleets_excursion(tmp_path, db, pl
         assert not any(d.detected for d in by[e][:on]), (e, c, on)
         assert all(d.detected and d.cls == c for d in by[e][max(on, 6) + 1:]), \
             (e, c, on, [(d.flight, d.cls, d.onset) for d in by[e]])
+    said = [str(w.message) for w in recwarn if "fleet-wide" in str(w.message)]
+    assert len(said) == 1 and "engines off on flight 6 only, back from flight 7" in said[0], said

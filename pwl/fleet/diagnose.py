@@ -835,8 +835,18 @@ def fleet_norms(series: list[EngineSeries], Sigma: np.ndarray, cfg: DiagnosisCon
     holds such a step only when it is among those flights, and then on every engine alike."""
     steps = fleet_steps(series, Sigma, cfg)
     common = common_steps(series, Sigma, cfg, steps)
+    away = _fleet_excursions(common)
+    from .trending import readable_detail
+    for a, b in away:
+        last = f"s {a.onset:g}-{b.onset - 1:g}" if b.onset - a.onset > 1 else f" {a.onset:g}"
+        warnings.warn(PwlWarning(
+            f"{len(a.engines)} of {a.eligible} engines off on flight{last} only, back from flight {b.onset:g} "
+            f"({a.alike} of them alike: {readable_detail(a.detail, units or {})}): a fleet-wide data fault (a "
+            "ground station's processing, a change undone)? Those flights are left out of the engines' tests"),
+            stacklevel=2)
     for c in common:
-        warnings.warn(PwlWarning(c.describe(units)), stacklevel=2)
+        if all(c is not x for pair in away for x in pair):
+            warnings.warn(PwlWarning(c.describe(units)), stacklevel=2)
     wear = wear_reference(series, Sigma, cfg, steps) if cfg.wear else None
     if wear is not None:
         wear.common = common
