@@ -573,6 +573,7 @@ class FleetNorm:
     engines: int
     rest: np.ndarray     # (m,) robust spread per deviation channel of what health does not explain
     common: list = field(default_factory=list)   # the fleet-wide steps left out (:func:`common_steps`)
+    away: list = field(default_factory=list)     # the pairs of them that are one excursion (:func:`_fleet_excursions`)
 
     def at(self, S: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(mean (k,), covariance (k, k)) in the deviation channels ``idx`` (k,) with signatures
@@ -718,6 +719,7 @@ class CommonStep:
     detail: str
     onsets: dict = field(default_factory=dict)
     rollout: bool = False
+    fit: np.ndarray = field(default_factory=lambda: np.zeros(0))    # the median fit ``detail`` reads
 
     def describe(self, units: dict | None = None) -> str:
         """One line for people: "10 of 12 engines changed alike from flight 10 (sensor:T48
@@ -799,7 +801,7 @@ def _common(steps: list, eligible: int, bank: list[Hypothesis], columns: list[st
     med = np.median(np.array(fits[hi]), axis=0)
     detail = " ".join(f"{columns[c]}={v:+.5g}" for c, v in zip(bank[hi].columns, med))
     return CommonStep(min(s[1] for s in steps), [s[0] for s in steps], eligible, bank[hi].name, len(fits[hi]),
-                      detail, {s[0]: s[1] for s in steps if s[2] == hi}, rollout)
+                      detail, {s[0]: s[1] for s in steps if s[2] == hi}, rollout, med)
 
 
 def _rollouts(steps: list, eligible: int, width: int) -> list[list]:
@@ -849,7 +851,7 @@ def fleet_norms(series: list[EngineSeries], Sigma: np.ndarray, cfg: DiagnosisCon
             warnings.warn(PwlWarning(c.describe(units)), stacklevel=2)
     wear = wear_reference(series, Sigma, cfg, steps) if cfg.wear else None
     if wear is not None:
-        wear.common = common
+        wear.common, wear.away = common, away
     return wear, level_reference(series, Sigma, cfg)
 
 
@@ -1527,8 +1529,8 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
     seen: list[tuple[float, str]] = []      # every sensor step detected: (onset, class)
     own = (1.0, -1)                         # the largest own scatter used, and its flight
     offsets = None                          # raw-unit sensor offsets of its baseline (:func:`_calibration`)
-    common = wear.common if wear else []
-    away = [(a, b) for a, b in _fleet_excursions(common) if es.engine in a.engines or es.engine in a.onsets]
+    common, away = (wear.common, wear.away) if wear else ([], [])
+    away = [(a, b) for a, b in away if es.engine in a.engines or es.engine in a.onsets]
     rolled = [Known(c.onsets[es.engine], "fleet", c.cls) for c in common if es.engine in c.onsets
               and all(c is not x for pair in away for x in pair)]          # its steps of fleet-wide changes
     changed_in_flight: list[int] = []       # transition flights (:func:`_transition`), left out
@@ -1748,14 +1750,12 @@ def _fleet_excursions(common: list[CommonStep]) -> list[tuple[CommonStep, Common
     the flights before the first only, and one that began with the second was lost in it (a
     snapshot table of 100 engines with every channel 1.5-2 % off on flight 10: TPR 100 -> 81.4 %,
     FPR 0 -> 0.54 %). The engines that changed with the first leave out its flights."""
-    def fit(c):
-        return np.array([float(v) for v in re.findall(r"=([-+0-9.eE]+)", c.detail)])
     out = []
     for a in common:
         for b in common:
             if (b is not a and 0 < b.onset - a.onset <= EXCURSION_FLIGHTS and a.cls == b.cls and not a.rollout
-                    and not b.rollout and fit(a).size == fit(b).size > 0
-                    and np.all(np.abs(fit(a) + fit(b)) <= np.abs(fit(a)) / 3)
+                    and not b.rollout and a.fit.size == b.fit.size > 0
+                    and np.all(np.abs(a.fit + b.fit) <= np.abs(a.fit) / 3)
                     and all(a is not x and b is not y for x, y in out)):
                 out.append((a, b))
     return out
