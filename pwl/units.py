@@ -119,9 +119,11 @@ def likely_units(value: float, unit: str, lo: float, hi: float) -> list[str]:
 
 def implausible_hint(value: float, unit: str, lo: float, hi: float) -> str:
     """Why a channel's typical implausible ``value`` is outside its plausible [lo, hi] ``unit``:
-    the units it would be plausible in (:func:`likely_units`: a unit not declared), else
-    infinite values, a value below the range (the engine not running, a failed sensor) or above
+    a "no data" code (all nines: -9999), else the units it would be plausible in
+    (:func:`likely_units`: a unit not declared), else infinite values, a value below the range (the engine not running, a failed sensor) or above
     it. The end of the warnings that name such a channel (a log's, a snapshot table's)."""
+    if abs(value) >= 99 and set(f"{abs(value):.6g}") <= {"9", "."}:      # -9999, 99999, -999.9 ...
+        return f"{value:.6g} is a 'no data' code of the writer?"
     guess = likely_units(value, unit, lo, hi)
     if guess:
         return (f"logged in {' or '.join(guess)}? Declare the unit (a 'name[unit]' column, a row of units or a "

@@ -121,7 +121,7 @@ def test_a_channel_mostly_implausible_is_named_with_the_units_it_would_fit():
     assert len(said) == 3
     assert "channel 'Pin': 300 of 300 samples implausible" in said[0] and "kPa" in said[0]
     assert "channel 'Tin'" in said[1] and "logged in degC or degF?" in said[1]
-    assert "channel 'y0'" in said[2] and "typically -999 " in said[2] and "a failed sensor?" in said[2]
+    assert "channel 'y0'" in said[2] and "typically -999 " in said[2] and "'no data' code" in said[2]
 
 
 @pytest.mark.parametrize("value, unit, lo, hi, want", [

@@ -13,7 +13,7 @@ from pwl.cli import main
 from pwl.database import GainDatabase
 from pwl.demo_data import demo_paths
 from pwl.errors import PwlWarning
-from pwl.fleet.diagnose import diagnose_fleet
+from pwl.fleet.diagnose import diagnose_fleet, engine_named
 from pwl.fleet.signatures import DiagnosisError
 from pwl.fleet.snapshot_table import read_snapshot_table
 
@@ -293,3 +293,69 @@ def test_every_engine_off_on_one_flight_is_the_fleets_excursion(tmp_path, db, pl
             (e, c, on, [(d.flight, d.cls, d.onset) for d in by[e]])
     said = [str(w.message) for w in recwarn if "fleet-wide" in str(w.message)]
     assert len(said) == 1 and "engines off on flight 6 only, back from flight 7" in said[0], said
+
+
+def test_a_unit_change_mid_history_serials_in_other_cases_and_no_data_codes(tmp_path, db, plan, recwarn):
+    """A ground station that began writing T48 in degC (inside T48's plausible range in K) on two
+    healthy engines' last four flights, serials typed in lower case or with spaces on some rows,
+    a -9999 'no data' code and a row sent twice: the same rows as the clean table, but T48 missing on those
+    flights; each named in a warning. Before, the degC flights were T48 faults and every
+    differently-spelt serial was an engine of its own."""
+    rows = table_rows(plan)
+    clean = diagnose_fleet(read_snapshot_table(write_table(tmp_path / "clean.csv", rows), db), db)[0]
+    healthy = [plan.serial[i] for i, c in enumerate(plan.fault_class) if c == "none"][:2]
+    for k, r in enumerate(rows):
+        if r["engine"] in healthy and r["flight"] >= FLIGHTS - 4:
+            r["T48"] -= 273.15
+        if k % 7 == 3:
+            r["engine"] = r["engine"].lower() if k % 2 else f" {r['engine'][:3]} {r['engine'][3:]}"
+    rows[5]["Ps30"] = -9999.0
+    rows.insert(30, dict(rows[12]))      # one snapshot sent twice
+    recwarn.clear()
+    got = diagnose_fleet(read_snapshot_table(write_table(tmp_path / "messy.csv", rows), db), db)[0]
+    said = [str(w.message) for w in recwarn.list]
+    assert any("T48: 16 snapshot value(s) of 2 engine(s)" in s and "degC" in s for s in said), said
+    assert any(f"{ENGINES} engine serial(s) spelt more than one way" in s for s in said), said
+    assert any("'Ps30': 1 of" in s and "'no data' code" in s for s in said), said
+    assert any("1 row(s) repeat an earlier row exactly (the first: row 32)" in s for s in said), said
+    assert [(d.engine, d.flight) for d in got] == [(d.engine, d.flight) for d in clean]
+    for a, b in zip(got, clean):
+        assert (a.detected, a.cls) == (b.detected, b.cls), (a.engine, a.flight, a.cls, b.cls)
+        if a.engine in healthy and a.flight >= FLIGHTS - 4:
+            assert "T48" in a.missing.split()
+    # a user's serial as they type it: the results' spelling
+    assert engine_named(" esn 001", {"ESN001", "ESN002"}) == "ESN001"
+    assert engine_named("ESN003", {"ESN001", "esn003", "ESN003"}) == "ESN003"
+    assert engine_named("esn004", {"ESN001"}) == "esn004"
+
+
+def test_snapshots_with_times_of_their_own_and_dates_day_or_month_first(tmp_path, db, plan):
+    """A report per snapshot (idle at 06:00, cruise at 08:00) with no flight numbers, its dates day-
+    first (27/01/2026 08:00) or month-first with AM/PM: each engine's snapshots grouped into its
+    flights again, and the diagnosis is the flight-numbered table's. Before, each snapshot was a
+    flight of its own (its regimes never met; unreadable dates were silently row order). With
+    flight numbers too, a number repeated two weeks later (the counter reset) is two flights.
+    Dates whose order cannot be told, and no readable time, are errors naming the column."""
+    from datetime import datetime, timedelta
+
+    rows = table_rows(plan)
+    clean = diagnose_fleet(read_snapshot_table(write_table(tmp_path / "clean.csv", rows), db), db)[0]
+    when = [datetime.fromisoformat(r["flight_time"]) + timedelta(days=10, hours=6 + 2 * (r["regime"] == "cruise"))
+            for r in rows]      # (from the 11th: a day above 12 tells the order)
+    for fmt in ("%d/%m/%Y %H:%M", "%m/%d/%Y %I:%M %p"):
+        timed = [{"engine": r["engine"], "date": t.strftime(fmt), **{k: v for k, v in r.items()
+                 if k not in ("engine", "flight", "flight_time")}} for r, t in zip(rows, when)]
+        timed = timed[1::2] + timed[::2]       # cruise reports first: the order is the times'
+        with pytest.warns(PwlWarning, match=rf"{2 * ENGINES * FLIGHTS} times -> {ENGINES * FLIGHTS} flights"):
+            got = diagnose_fleet(read_snapshot_table(write_table(tmp_path / "t.csv", timed), db), db)[0]
+        assert [(d.engine, d.detected, d.cls, d.onset) for d in got] == [(d.engine, d.detected, d.cls, d.onset)
+                                                                         for d in clean], fmt
+    reset = [dict(r, flight=r["flight"] % 6, flight_time=w.isoformat()) for r, w in zip(rows, when)]
+    recs = read_snapshot_table(write_table(tmp_path / "r.csv", reset), db)
+    assert len(recs) == ENGINES * FLIGHTS and all(len(r.snapshot) == 2 for r in recs)
+    early = [{k: v for k, v in r.items() if k not in ("engine", "flight", "flight_time")} for r in rows[:40]]
+    with pytest.raises(DiagnosisError, match=r"column 'date'.*day or the month first cannot be told"):
+        read_snapshot_table(write_table(tmp_path / "a.csv", [dict(engine="E1", date=f"0{1 + k % 9}/01/2026", **r)
+                                                            for k, r in enumerate(early)]), db)
+    with pytest.raises(DiagnosisError, match=r"column 'date': 40 of 40 times unreadable.*no flight number"):
+        read_snapshot_table(write_table(tmp_path / "b.csv", [dict(engine="E1", date="soon", **r) for r in early]), db)

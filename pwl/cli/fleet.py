@@ -110,8 +110,11 @@ def read_flights(files, engine_pattern=None):
 def read_inputs(command, paths, database=None, channel_map=None, engine_pattern=None):
     """(records, skipped) of ``paths``: results files and folders of ``pwl run`` (:func:`read_flights`)
     and snapshot tables (files, :func:`pwl.fleet.snapshot_table.read_snapshot_table`, which need
-    ``database``); (None, []) after printing why when there is nothing to read or no database."""
+    ``database``), serials that differ only in case or spaces made one (named:
+    :func:`pwl.fleet.diagnose.same_engines`); (None, []) after printing why when there is nothing
+    to read or no database."""
     from ..database import GainDatabase
+    from ..fleet.diagnose import same_engines
     from ..fleet.snapshot_table import is_snapshot_table, read_snapshot_table
     tables = [p for p in paths if not os.path.isdir(p) and is_snapshot_table(p)]
     files = results_files([p for p in paths if p not in tables])
@@ -129,6 +132,8 @@ def read_inputs(command, paths, database=None, channel_map=None, engine_pattern=
         db = GainDatabase.open(database)
         for t in tables:
             records += read_snapshot_table(t, db, channel_map)
+    for line in same_engines(records):
+        print(f"pwl: warning: {line}", file=sys.stderr)
     return records, skipped
 
 
@@ -156,9 +161,11 @@ EXCLUDE_HELP = ("leave that flight out (flown off the engine's usual configurati
 def engine_flights(items: list[str], records, option: str = "--new-baseline") -> dict[str, list[int]]:
     """engine -> flight numbers of ``option ENGINE:FLIGHT`` items (``--new-baseline``,
     ``--exclude``; for ``--exclude`` an item may also be a CSV file with columns engine and flight).
-    A UsageError names an item that is not that, a CSV line without a flight number, or an engine
+    An engine is named as the results spell it (``esn012`` for ESN012: :func:`pwl.fleet.diagnose.engine_named`). A
+    UsageError names an item that is not that, a CSV line without a flight number, or an engine
     the results do not have."""
     from ..errors import UsageError
+    from ..fleet.diagnose import engine_named
     out: dict[str, list[int]] = {}
     for item in items:
         if option == "--exclude" and item.lower().endswith(".csv"):
@@ -173,7 +180,12 @@ def engine_flights(items: list[str], records, option: str = "--new-baseline") ->
         if not engine:
             raise UsageError(f"{option} {item!r}: expected ENGINE:FLIGHT (a flight number)")
         out.setdefault(engine, []).append(number)
-    unknown = sorted(set(out) - {r.engine for r in records})
+    have = {r.engine for r in records}
+    merged: dict[str, list[int]] = {}
+    for engine, numbers in out.items():
+        merged.setdefault(engine_named(engine, have), []).extend(numbers)
+    out = merged
+    unknown = sorted(set(out) - have)
     if unknown:
         raise UsageError(f"{option} names engines the results do not have: {', '.join(unknown)}")
     return out

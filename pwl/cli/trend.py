@@ -30,7 +30,7 @@ def run(args) -> int:
     import sys
 
     from ..database import GainDatabase
-    from ..fleet.diagnose import copies, group_engines, mixed_engines, order_notes
+    from ..fleet.diagnose import copies, engine_named, group_engines, mixed_engines, order_notes
     from ..fleet.trending import engine_trend, plot_trend
     from .fleet import database_of, engine_flights, read_inputs
     from .output import check_output, plot_or_note
@@ -41,6 +41,7 @@ def run(args) -> int:
         return 2
     if args.engine:
         have = {r.engine for r in records}
+        args.engine = [engine_named(e, have) for e in args.engine]
         unknown = [e for e in args.engine if e not in have]
         if unknown:
             print(f"pwl trend: no engine {unknown[0]!r} in the results (engines: {', '.join(sorted(have)[:20])})",

@@ -318,23 +318,78 @@ def _whole(v, path) -> int:
     return -1
 
 
+def serial_key(engine: str) -> str:
+    """An engine serial without case and spaces: what two spellings of one serial share."""
+    return "".join(engine.split()).casefold()
+
+
+def engine_named(name: str, engines) -> str:
+    """The engine of ``engines`` that ``name`` (given by a user) means: itself, else the one
+    spelt alike but for case and spaces; ``name`` when none is."""
+    if name in engines:
+        return name
+    alike = [e for e in engines if serial_key(e) == serial_key(name)]
+    return alike[0] if len(alike) == 1 else name
+
+
+def one_spelling(names: list[str], what: str = "flights") -> tuple[dict[str, str], list[str]]:
+    """Engine serials that differ only in case or whitespace (``ESN001``, ``esn001``, ``ESN 001``:
+    typed by hand, or two systems' exports) are one engine, spelt as most of ``names`` (one per
+    flight, or per table row: ``what``) spell it (the first in natural order on a tie). Returns
+    (spelling -> the one kept, for the serials merged; a line naming them, or none)."""
+    spell: dict[str, dict[str, int]] = {}
+    for e in names:
+        n = spell.setdefault(serial_key(e), {})
+        n[e] = n.get(e, 0) + 1
+    to, merged = {}, []
+    for n in spell.values():
+        if len(n) > 1:
+            best = min(n, key=lambda e: (-n[e], _natural(e)))
+            to.update({e: best for e in n if e != best})
+            merged.append(f"{best!r} (also {', '.join(repr(e) for e in n if e != best)}: "
+                          f"{sum(v for e, v in n.items() if e != best)} of its {sum(n.values())} {what})")
+    if not merged:
+        return to, []
+    return to, [f"{len(merged)} engine serial(s) spelt more than one way, differing only in case or spaces, "
+                f"each read as one engine: {'; '.join(merged[:3])}{'; ...' if len(merged) > 3 else ''}"]
+
+
+def same_engines(records: list[FlightRecord]) -> list[str]:
+    """Give the records of one engine spelt differently one serial (:func:`one_spelling`); a line
+    for each serial so merged."""
+    to, out = one_spelling([r.engine for r in records])
+    for r in records:
+        r.engine = to.get(r.engine, r.engine)
+    return out
+
+
 def mixed_engines(records: list[FlightRecord]) -> list[str]:
     """A line for every engine whose flights repeat a flight index (or, without indices, a flight
     time): several engines' logs in one folder, without an ``engine`` attribute, diagnosed as one;
-    or one flight exported twice (the first pair named). Flight times alone may repeat (a date
-    without the time of day: two flights a day)."""
+    or one flight exported twice (the first pair named); when every flight has a time of its own,
+    they order the flights (a counter reset) and the line says so. Flight times alone may repeat
+    (a date without the time of day: two flights a day)."""
     out = []
     for engine, flights in group_engines(records).items():
         indexed = all(r.index >= 0 for r in flights)
         what, key = ("flight index", lambda r: r.index) if indexed else ("flight time", lambda r: r.order[0])
         seen: dict = {}
         pairs = [(seen[k], r) for r in flights if (k := key(r)) not in ("", -1) and seen.setdefault(k, r) is not r]
-        if pairs:
-            a, b = pairs[0]
-            out.append(f"engine {engine}: {len(pairs)} of its {len(flights)} flights repeat another's {what} "
-                       f"({b.source} and {a.source}): several engines' logs in one folder, or one flight exported "
-                       "twice? Give each engine its own folder or an 'engine' attribute, or name it from the file "
-                       "names (--engine-pattern); remove a flight's second export")
+        if not pairs:
+            continue
+        a, b = pairs[0]
+        times = [r.time for r in flights]
+        head = f"engine {engine}: {len(pairs)} of its {len(flights)} flights repeat another's {what} ({b.source} and {a.source})"
+        if indexed and np.all(np.isfinite(times)) and len(set(times)) == len(times):
+            out.append(f"{head}, each at a flight time of its own: ordered by flight time (the counter reset, or "
+                       "two engines' data under one serial?)")
+        elif b.mode == "table":
+            out.append(f"{head}: two engines' rows under one serial, or one flight sent twice? Give each engine "
+                       "its own serial; remove a flight's second copy")
+        else:
+            out.append(f"{head}: several engines' logs in one folder, or one flight exported twice? Give each engine "
+                       "its own folder or an 'engine' attribute, or name it from the file names (--engine-pattern); "
+                       "remove a flight's second export")
     return out
 
 
@@ -388,24 +443,40 @@ class EngineSeries:
     h_hat: np.ndarray
     h_names: list[str]
     input_names: list[str] = field(default_factory=list)
+    #: values read as missing for a deviation beyond :data:`GROSS_DEVIATION`: (flight position,
+    #: channel, regime, relative deviation, raw value)
+    gross: list[tuple] = field(default_factory=list)
+
+
+#: a channel more than this far (relative) from the model's value at its operating point is no
+#: state of the engine but a unit mistake (T48 in degC: 25-29 % low, inside T48's plausible
+#: range in K) or a failed sensor: read as missing and named (:func:`gross_note`). The largest
+#: deviation a fault of the engine gives in the simulated fleets is under 10 %.
+GROSS_DEVIATION = 0.2
 
 
 def engine_series(flights: list[FlightRecord], sig: Signatures, n_regimes: int) -> EngineSeries:
-    """Deviations of every flight and regime (NaN where a flight has no window in a regime)."""
+    """Deviations of every flight and regime (NaN where a flight has no window in a regime, and
+    where a channel is off by more than :data:`GROSS_DEVIATION`: ``gross``)."""
     flights = in_flight_order(flights)[0]
     m, ncol, R = len(sig.channels), len(sig.columns), n_regimes
     n = len(flights)
     D, SE = np.full((n, m * R), np.nan), np.full((n, m * R), np.nan)
     S, level = np.full((n, m * R, ncol), np.nan), np.full((n, ncol), np.nan)
     H = np.full((n, sig.db.n("h")), np.nan)
+    gross = []
     for i, r in enumerate(flights):
         s = r.snapshot
         longest = -1
         for reg, w in r.windows.items():
+            mean = dict(zip(s.channels, s.mean[w]))
             try:
-                dev = sig.at(dict(zip(s.channels, s.mean[w])), dict(zip(s.channels, s.se[w])))
+                dev = sig.at(mean, dict(zip(s.channels, s.se[w])))
             except KeyError as e:
                 raise DiagnosisError(f"{r.source}: snapshot lacks channel {e} the database needs") from None
+            for j in np.flatnonzero(np.abs(dev.d) > GROSS_DEVIATION):
+                gross.append((i, dev.channels[j], reg, float(dev.d[j]), float(mean[dev.channels[j]])))
+                dev.d[j] = dev.se[j] = np.nan
             cols = slice(reg * m, (reg + 1) * m)
             D[i, cols], SE[i, cols], S[i, cols] = dev.d, dev.se, dev.S
             if longest < 0 or s.samples[w] > s.samples[longest]:
@@ -415,7 +486,34 @@ def engine_series(flights: list[FlightRecord], sig: Signatures, n_regimes: int) 
             H[i] = s.outputs["h_hat"][longest]
     names = [f"{c}@{reg}" for reg in range(R) for c in sig.channels]
     return EngineSeries(flights[0].engine if flights else "", flights, names, list(sig.columns),
-                        D, SE, S, level, H, list(sig.db.names["h"]), list(sig.db.names["u"]))
+                        D, SE, S, level, H, list(sig.db.names["h"]), list(sig.db.names["u"]), gross)
+
+
+def gross_note(series: list[EngineSeries], units: dict) -> list[str]:
+    """A line per channel with values read as missing for a gross deviation (``EngineSeries.gross``):
+    how many, on which engines and flights, how far off, and the units that would bring the
+    typical one within 5 % of the model (:func:`pwl.units.likely_units`)."""
+    from ..units import likely_units
+    by: dict[str, list] = {}
+    for es in series:
+        for i, c, _, d, raw in es.gross:
+            by.setdefault(c, []).append((es.engine, es.flights[i].label, d, raw))
+    out = []
+    for c, hits in by.items():
+        d = np.array([h[2] for h in hits])
+        k = int(np.argsort(d)[d.size // 2])
+        raw = hits[k][3]
+        model = raw / (1.0 + d[k])
+        guess = likely_units(raw, units.get(c, ""), 0.95 * model, 1.05 * model)
+        why = (f"logged in {' or '.join(guess)} there? Declare the unit" if guess
+               else "a failed sensor, or a unit mistake?")
+        engines = list(dict.fromkeys(h[0] for h in hits))
+        first = {e: next(h[1] for h in hits if h[0] == e) for e in engines[:3]}
+        where = ", ".join(f"{e} from {lb}" for e, lb in first.items()) + (", ..." if len(engines) > 3 else "")
+        out.append(f"{c}: {len(hits)} snapshot value(s) of {len(engines)} engine(s) ({where}) "
+                   f"{100 * d.min():+.0f} to {100 * d.max():+.0f} % off the model at their operating point, "
+                   f"beyond any fault of the engine: {why}; read as missing")
+    return out
 
 
 def noise_covariance(series: list[EngineSeries], floor: float) -> np.ndarray:
@@ -2033,11 +2131,14 @@ def group_engines(records: list[FlightRecord]) -> dict[str, list[FlightRecord]]:
 
 
 def prepare(records: list[FlightRecord], db: GainDatabase) -> tuple[Signatures, np.ndarray]:
-    """Signatures of the database and the operating regimes of ``records`` (sets their windows);
-    a :class:`PwlWarning` when some results were computed with another database (their recorded
-    digest differs from ``db``'s)."""
+    """Signatures of the database and the operating regimes of ``records`` (sets their windows;
+    serials that differ only in case or spaces made one, :func:`same_engines`); a
+    :class:`PwlWarning` for that, and when some results were computed with another database
+    (their recorded digest differs from ``db``'s)."""
     if not records:
         raise DiagnosisError("no flights to diagnose")
+    for line in same_engines(records):      # (the CLI has done it as it read them)
+        warnings.warn(PwlWarning(line), stacklevel=3)
     sig = Signatures(db)
     for r in records:
         if r.snapshot.p_names != list(db.names["p"]) or not set(sig.channels) <= set(r.snapshot.channels):
@@ -2073,6 +2174,8 @@ def diagnose_fleet(records: list[FlightRecord], db: GainDatabase,
     excluded = excluded or {}
     series = [excluding(engine_series(v, sig, len(centers)), excluded.get(e, ()))
               for e, v in group_engines(records).items()]
+    for line in gross_note(series, db.channel_units()):
+        warnings.warn(PwlWarning(line), stacklevel=2)
     Sigma = noise_covariance(series, cfg.floor)
     from .trending import detail_units
     wear, level = fleet_norms(series, Sigma, cfg, detail_units(db))

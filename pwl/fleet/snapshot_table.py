@@ -9,11 +9,14 @@ a pandas DataFrame)::
 
 Columns, names in any case:
 
-- ``engine`` (or ``esn``, ``serial``, ``engine_serial``): the engine serial;
+- ``engine`` (or ``esn``, ``serial``, ``engine_serial``): the engine serial (spellings that differ
+  only in case or spaces are one engine: :func:`pwl.fleet.diagnose.one_spelling`);
 - ``flight`` (or ``flight_index``, ``flight_number``, ``cycle``; a whole number) and/or
-  ``flight_time`` (or ``date``, ``datetime``, ``timestamp``): the flights' order, as for results
-  files (:func:`pwl.fleet.diagnose.in_flight_order`); rows of one engine and flight are that
-  flight's snapshots;
+  ``flight_time`` (or ``date``, ``datetime``, ``timestamp``; ISO 8601, or day- or month-first
+  dates: :func:`_times`): the flights' order, as for results files
+  (:func:`pwl.fleet.diagnose.in_flight_order`); rows of one engine and flight number are that
+  flight's snapshots (:func:`_numbered_flights`); without numbers, snapshots with times of their
+  own are grouped into flights (:func:`_timed_flights`);
 - the channels the database reads (its scheduling channels, e.g. alt, Mach, Nf; the inlet's
   T2, P2; its sensors and inputs), in the database's units unless declared (``T48[degC]``, a row
   of units under the header) or mapped and declared by a channel map
@@ -23,20 +26,27 @@ Columns, names in any case:
 - anything else (a ``regime`` label, status words) is not read: regimes are found from the
   operating point, as for results files.
 
+A row that repeats an earlier one exactly (a snapshot sent twice) is read once, named in a
+warning.
+
 A sensor column may be missing (an engine standard without it: NaN, as a dead sensor); the
 scheduling and inlet channels may not, but for the inlet pressure with a database that knows its
 plant's inlet pressure recovery (builds since 0.7.1): it is then taken from pressure altitude and
 Mach, as the runtime does (``Estimator.inlet_from_air_data``). A value outside the channel's plausible range
-(``/log_channels``) is missing, counted and, when a tenth of a channel's rows are, named in a
-warning with the units that would make it plausible (a T48 in degC undeclared). A snapshot
+(``/log_channels``) is missing, counted and named in a warning with its first row and the units
+that would make it plausible (pressures in psi undeclared); one inside that range but far from
+the model at its operating point (a T48 in degC undeclared) is missing too, named by the
+diagnosis (:data:`pwl.fleet.diagnose.GROSS_DEVIATION`). A snapshot
 carries no sample scatter (its standard error is NaN): the diagnosis takes the flight-to-flight
 scatter from the fleet.
 """
 from __future__ import annotations
 
 import os
+import re
 import sys
 import warnings
+from functools import partial
 
 import numpy as np
 
@@ -45,7 +55,7 @@ from ..errors import PwlWarning
 from ..logs import LogError, _from_columns, _split_header, csv_frame, parquet_frame
 from ..snapshots import Snapshots
 from ..units import implausible_hint
-from .diagnose import FlightRecord, _natural, _whole
+from .diagnose import FlightRecord, _natural, _whole, assign_regimes, flight_seconds, one_spelling
 from .signatures import DiagnosisError
 
 ENGINE_NAMES = ("engine", "esn", "serial", "engine_serial")
@@ -155,24 +165,150 @@ def read_snapshot_table(source, db: GainDatabase, channel_map=None) -> list[Flig
     count = _samples(path, df, i_n)
     column = {k: [_text(v) for v in df.iloc[:, j]] if j is not None else [""] * df.shape[0]
               for k, j in (("engine", ie), ("flight", i_f), ("time", it))}
-    groups: dict[tuple, list[int]] = {}
+    if it is not None:
+        column["time"] = _times(path, names[it], column["time"], i_f is None)
+    to, merged = one_spelling([e for e in column["engine"] if e], "rows")
+    for line in merged:
+        warnings.warn(PwlWarning(f"{path}: {line}"), stacklevel=2)
+    column["engine"] = [to.get(e, e) for e in column["engine"]]
+    repeat = df.duplicated().to_numpy()
+    if repeat.any():
+        k = int(np.flatnonzero(repeat)[0])
+        warnings.warn(PwlWarning(f"{path}: {int(repeat.sum())} row(s) repeat an earlier row exactly (the first: row "
+                                 f"{k + 2}): one snapshot sent twice? Read once"), stacklevel=2)
     for k, (e, fl, tm) in enumerate(zip(column["engine"], column["flight"], column["time"])):
         if not e:
             raise DiagnosisError(f"{path}: row {k + 2} has no engine")
         if not fl and not tm:
             raise DiagnosisError(f"{path}: row {k + 2} (engine {e}) has neither flight number nor time")
-        groups.setdefault((e, fl, tm), []).append(k)
-    records = []
-    for (e, fl, tm), rows in groups.items():
-        fidx = _whole(fl, f"{path}: row {rows[0] + 2}") if fl else -1
-        rows = np.array(rows)
-        snap = Snapshots(chans, list(db.names["p"]), rows.astype(np.float64), rows.astype(np.float64),
-                         count[rows], X[rows], np.full((rows.size, len(chans)), np.nan),
-                         np.isfinite(X[rows]).astype(np.float64), P[rows])
-        label = f"flight {fl}" if fl else tm
-        records.append(FlightRecord(e, (tm, fidx, _natural(label)), f"{path}:row {rows[0] + 2}", label, snap,
-                                    db.path, db.digest, "table"))
-    return records
+    record = partial(_record, path, db, chans, X, P, count)
+    keep = np.flatnonzero(~repeat)
+    if i_f is not None:
+        return [record(e, fl, tm, rows) for e, fl, tm, rows in _numbered_flights(column, keep)]
+    records = [record(column["engine"][k], "", column["time"][k], np.array([k])) for k in keep]
+    return _timed_flights(path, records, record, db)
+
+
+_NUMERIC_DATE = re.compile(r"^(\d{1,2})([/.-])(\d{1,2})\2(\d{4}|\d{2})(?:[ T]+(.*))?$")
+_CLOCK = ("%H:%M", "%H:%M:%S", "%H:%M:%S.%f", "%I:%M %p", "%I:%M:%S %p")
+
+
+def _times(path, name: str, values: list[str], needed: bool) -> list[str]:
+    """The time column's cells as ISO 8601 text where they are dates written with the day or the
+    month first (27/11/2026 06:12, 11/27/2026 6:12 AM, 27.11.26): which comes first is read from
+    the column (a first field above 12: the day; a second one: the month); other cells as they
+    are (:func:`pwl.fleet.diagnose.flight_seconds` reads ISO 8601 and numbers). A column whose
+    order cannot be told (no field above 12, or both), and cells that stay unreadable, are named
+    in a PwlWarning, or a DiagnosisError when the column is all the table has to tell flights
+    apart (``needed``: no flight numbers)."""
+    from datetime import datetime
+    hits = [(k, m) for k, v in enumerate(values) if v and not np.isfinite(flight_seconds(v))
+            and (m := _NUMERIC_DATE.match(v))]
+    out = list(values)
+    if hits:
+        day_first = any(int(m.group(1)) > 12 for _, m in hits)
+        month_first = any(int(m.group(3)) > 12 for _, m in hits)
+        if day_first == month_first:
+            k = hits[0][0]
+            what = (f"{path}: column {name!r}: whether {values[k]!r} (row {k + 2}) has the day or the month first "
+                    f"cannot be told ({'both occur' if day_first else 'no field above 12'}): write ISO 8601 dates "
+                    "(2026-11-27 06:12)")
+            if needed:
+                raise DiagnosisError(what)
+            warnings.warn(PwlWarning(f"{what}; the flights are ordered by their numbers"), stacklevel=3)
+            return out
+        for k, m in hits:
+            d, mo = (m.group(1), m.group(3)) if day_first else (m.group(3), m.group(1))
+            y = int(m.group(4)) + (2000 if len(m.group(4)) == 2 else 0)
+            for clock in _CLOCK if m.group(5) else ("",):
+                try:
+                    t = datetime.strptime(m.group(5) or "", clock)
+                    out[k] = datetime(y, int(mo), int(d), t.hour, t.minute, t.second, t.microsecond).isoformat()
+                    break
+                except ValueError:
+                    continue
+    bad = [k for k, v in enumerate(out) if v and not np.isfinite(flight_seconds(v))]
+    if bad:
+        what = (f"{path}: column {name!r}: {len(bad)} of {len(out)} times unreadable (the first {values[bad[0]]!r} on row "
+                f"{bad[0] + 2}); ISO 8601 (2026-11-27 06:12) or day- or month-first dates are read")
+        if needed and len(bad) == len(out):
+            raise DiagnosisError(f"{what}, and the table has no flight number column")
+        warnings.warn(PwlWarning(f"{what}: those rows are ordered by their flight number or row"), stacklevel=3)
+    return out
+
+
+#: without flight numbers, two snapshots of an engine more than this far apart (hours) are of two
+#: flights; with them, two rows of one flight number so far apart are (the counter reset)
+FLIGHT_GAP_HOURS = 12.0
+
+
+def _record(path, db, chans, X, P, count, engine, fl, tm, rows) -> FlightRecord:
+    """The FlightRecord of one engine's flight: table rows ``rows`` (sorted), flight number
+    ``fl`` ('' when none) and time ``tm``."""
+    rows = np.sort(np.asarray(rows))
+    fidx = _whole(fl, f"{path}: row {rows[0] + 2}") if fl else -1
+    snap = Snapshots(chans, list(db.names["p"]), rows.astype(np.float64), rows.astype(np.float64),
+                     count[rows], X[rows], np.full((rows.size, len(chans)), np.nan),
+                     np.isfinite(X[rows]).astype(np.float64), P[rows])
+    label = f"flight {fl}" if fl else tm
+    return FlightRecord(engine, (tm, fidx, _natural(label)), f"{path}:row {rows[0] + 2}", label, snap,
+                        db.path, db.digest, "table")
+
+
+def _numbered_flights(column: dict, keep: np.ndarray) -> list[tuple]:
+    """(engine, flight number, time, rows) of each flight of a table with flight numbers: the
+    rows of one engine and number, split where their times are more than FLIGHT_GAP_HOURS apart
+    (the counter reset: the same number on another day); a row without a number is a flight of
+    its own time. The time is the flight's first."""
+    groups: dict[tuple, list[int]] = {}
+    for k in keep:
+        e, fl, tm = column["engine"][k], column["flight"][k], column["time"][k]
+        groups.setdefault((e, fl) if fl else (e, fl, tm), []).append(int(k))
+    out = []
+    for rows in groups.values():
+        t = np.array([flight_seconds(column["time"][k]) for k in rows])
+        order = np.argsort(np.where(np.isfinite(t), t, np.inf), kind="stable")
+        rows, t = [rows[i] for i in order], t[order]
+        cut = [0] + [i for i in range(1, len(rows)) if t[i] - t[i - 1] > 3600.0 * FLIGHT_GAP_HOURS] + [len(rows)]
+        for a, b in zip(cut, cut[1:]):
+            k = rows[a]
+            out.append((column["engine"][k], column["flight"][k], column["time"][k], rows[a:b]))
+    return out
+
+
+def _timed_flights(path, records: list[FlightRecord], record, db) -> list[FlightRecord]:
+    """A table without flight numbers whose snapshots have times of their own (a take-off report
+    at 06:12, a cruise report at 07:40): an engine's snapshots in time order are one flight until
+    one repeats an operating regime already in it (:func:`pwl.fleet.diagnose.assign_regimes`) or
+    comes more than FLIGHT_GAP_HOURS after the one before. Snapshots without a readable time are
+    flights of their own; rows sharing one time (a date per flight) part only where a regime
+    repeats (two flights a day). A PwlWarning says so when snapshots of distinct times were made
+    one flight."""
+    assign_regimes(records, db.p_spans(), min_share=0.0)
+    flights, by = [], {}
+    for r in records:
+        by.setdefault(r.engine, []).append(r)
+    for e, recs in by.items():
+        recs.sort(key=lambda r: (r.time if np.isfinite(r.time) else np.inf, r.snapshot.t0[0]))
+        cur, seen, last = [], set(), np.nan
+        for r in recs:
+            regimes = set(r.windows)
+            if cur and not (r.time - last <= 3600.0 * FLIGHT_GAP_HOURS and not regimes & seen):
+                flights.append(cur)
+                cur, seen = [], set()
+            cur.append(r)
+            seen |= regimes
+            last = r.time
+        flights.append(cur)
+    grouped = [record(f[0].engine, "", f[0].order[0], np.concatenate([r.snapshot.t0 for r in f]).astype(np.int64))
+               for f in flights]
+    if any(len({r.order[0] for r in f}) > 1 for f in flights):
+        warnings.warn(PwlWarning(
+            f"{path}: no flight numbers, and snapshots with times of their own: an engine's snapshots in time order "
+            f"are one flight until an operating regime repeats or {FLIGHT_GAP_HOURS:g} h pass ({len(records)} "
+            f"times -> {len(grouped)} flights); give a flight column to say which flight each snapshot is of"),
+            stacklevel=3)
+    return grouped
 
 
 def _channels(path, columns: list[tuple], db: GainDatabase, channel_map) -> tuple[list[str], np.ndarray]:
@@ -250,8 +386,8 @@ def _numbers(column) -> np.ndarray:
 
 
 def _plausible(path, X, chans, db: GainDatabase, declared: dict) -> np.ndarray:
-    """X with every value outside its channel's plausible range NaN; a PwlWarning names a channel
-    with a tenth of its rows so, with the units that would make its typical value plausible."""
+    """X with every value outside its channel's plausible range NaN; a PwlWarning names each such
+    channel: how many, the first row, the units that would make its typical value plausible."""
     ranges, units = db.channel_ranges(), db.channel_units()
     X = X.copy()
     for j, c in enumerate(chans):
@@ -260,12 +396,11 @@ def _plausible(path, X, chans, db: GainDatabase, declared: dict) -> np.ndarray:
         bad = np.isfinite(col) & ((col < lo) | (col > hi)) | np.isinf(col)
         if not bad.any():
             continue
-        if bad.sum() >= max(1, col.size // 10):
-            med = float(np.median(col[bad]))
-            had = f" (declared {declared[c]})" if declared.get(c) else ""
-            warnings.warn(PwlWarning(f"{path}: channel {c!r}{had}: {int(bad.sum())} of {col.size} snapshots "
-                                     f"implausible, typically {med:.6g} where {lo:.6g} to {hi:.6g} "
-                                     f"{units.get(c, '')} is plausible: "
-                                     f"{implausible_hint(med, units.get(c, ''), lo, hi)}; read as missing"), stacklevel=3)
+        med = float(np.median(col[bad]))
+        had = f" (declared {declared[c]})" if declared.get(c) else ""
+        warnings.warn(PwlWarning(f"{path}: channel {c!r}{had}: {int(bad.sum())} of {col.size} snapshots "
+                                 f"implausible (the first on row {int(np.flatnonzero(bad)[0]) + 2}), typically "
+                                 f"{med:.6g} where {lo:.6g} to {hi:.6g} {units.get(c, '')} is plausible: "
+                                 f"{implausible_hint(med, units.get(c, ''), lo, hi)}; read as missing"), stacklevel=3)
         col[bad] = np.nan
     return X

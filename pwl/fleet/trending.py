@@ -17,13 +17,15 @@ floor), so the verdict is less sharp than in a fleet run (``pwl fleet diagnose``
 from __future__ import annotations
 
 import os
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..database import GainDatabase
+from ..errors import PwlWarning
 from .diagnose import (DiagnosisConfig, Decision, FlightRecord, diagnose_engine, engine_series, excluding,
-                       fleet_norms, group_engines, mark_excluded, noise_covariance, prepare, recoveries)
+                       fleet_norms, gross_note, group_engines, mark_excluded, noise_covariance, prepare, recoveries)
 
 
 @dataclass
@@ -208,6 +210,8 @@ def engine_trend(records: list[FlightRecord], db: GainDatabase,
     excluded = excluded or {}
     es = engine_series(records, sig, len(centers))
     es = excluding(es, excluded.get(es.engine, ()))
+    for note in gross_note([es], db.channel_units()):
+        warnings.warn(PwlWarning(note), stacklevel=2)
     wear = level = None
     if others:
         series = [es] + [excluding(engine_series(v, sig, len(centers)), excluded.get(e, ()))
