@@ -143,6 +143,16 @@ def component(column: str) -> str:
     return column.rsplit("_", 1)[0] if "_" in column else column
 
 
+def single_sensor(cls: str) -> bool:
+    """Whether a class names one sensor's bias (``sensor:T48``; not ``sensor:T48+sensor:Ps30``)."""
+    return cls.startswith("sensor:") and "+" not in cls
+
+
+def sensor_pair(cls: str) -> bool:
+    """Whether a class names two sensors' biases (``sensor:Ps30+sensor:T48``)."""
+    return cls.startswith("sensor:") and "+" in cls
+
+
 def _testable(h: Hypothesis, S: np.ndarray) -> bool:
     """Whether the channels of signatures S (m, ncol) can test ``h``: each of its columns moves
     one of them (a bias of a sensor without data cannot be tested)."""
@@ -152,7 +162,7 @@ def _testable(h: Hypothesis, S: np.ndarray) -> bool:
 def hypotheses(columns: list[str], pairs: bool = True) -> list[Hypothesis]:
     """The bank: one component (all its health parameters, grouped by the name before the last
     ``_``: fan_eff, fan_flow -> fan), every pair of components, every component with every sensor
-    bias (``hpt+sensor:T30``), every sensor bias."""
+    bias (``hpt+sensor:T30``), every sensor bias (pairs of sensors: :func:`sensor_pairs`)."""
     comps: dict[str, list[int]] = {}
     out = []
     for j, c in enumerate(columns):
@@ -166,6 +176,16 @@ def hypotheses(columns: list[str], pairs: bool = True) -> list[Hypothesis]:
         bank += [Hypothesis(f"{a}+{b}", comps[a] + comps[b]) for i, a in enumerate(keys) for b in keys[i + 1:]]
         bank += [Hypothesis(f"{a}+{h.name}", comps[a] + h.columns) for a in keys for h in out]
     return bank + out
+
+
+def sensor_pairs(bank: list[Hypothesis]) -> list[Hypothesis]:
+    """Every pair of the sensor biases of ``bank`` (``sensor:Ps30+sensor:T48``): two biases at once
+    (one ground-station calibration, one harness) read as one bias and a component, or as a
+    'recovery'. They isolate steps and drifts, never detect (:func:`_decide`), and are tried there
+    only: not for wear or a level from the first flight (two sensors drifting from delivery
+    fitted an engine wearing every component as well as the components)."""
+    one = [h for h in bank if single_sensor(h.name)]
+    return [Hypothesis(f"{a.name}+{b.name}", a.columns + b.columns) for i, a in enumerate(one) for b in one[i + 1:]]
 
 
 # ---- reading results ----------------------------------------------------------------------------
@@ -1152,7 +1172,8 @@ def _decide(dec, stage, bank, S, t, es, rowsok, n_tests, cfg) -> bool:
     # The pairs that are a component's curvature are left out at the points tried only (testing
     # every fit took a fifth of a long history's time)
     for shape, tau in sorted(by_point, key=lambda k: -by_point[k][0][5]):
-        here = [f for f in by_point[(shape, tau)] if not _curvature(bank[f[1]], f[3], S, es.columns)]
+        here = [f for f in by_point[(shape, tau)] if not _curvature(bank[f[1]], f[3], S, es.columns)
+                and not (shape in ("wear", "level") and sensor_pair(bank[f[1]].name))]
         if not here:
             continue
         _, hi, T, th, cov, _ = max(here, key=lambda f: f[2] - bank[f[1]].cost(cfg))
@@ -1161,13 +1182,17 @@ def _decide(dec, stage, bank, S, t, es, rowsok, n_tests, cfg) -> bool:
             break
     else:
         return False
-    p = float(stats.chi2.sf(T, len(bank[hi].columns))) * n_tests
     h = bank[hi]
-    size = float(np.linalg.norm(S[:, h.columns] @ th))   # fitted change (rate for ramps), relative
+    # detected on the bank without the pairs of sensors (they only isolate: two biases at once
+    # were one bias and a component, or a 'recovery'), so that the test and its bound are theirs
+    _, di, T_d, th_d, _, _ = max((f for f in here if not sensor_pair(bank[f[1]].name)),
+                                 key=lambda f: f[2] - bank[f[1]].cost(cfg))
+    p = float(stats.chi2.sf(T_d, len(bank[di].columns))) * n_tests
+    size = float(np.linalg.norm(S[:, bank[di].columns] @ th_d))   # fitted change (rate for ramps), relative
     # wear is the components': a sensor has no fleet wear to compare with, so its trend from the
     # first flight is a drift held to min_rate (a slower one is as likely the seasons in the
     # model's error: fuel flow "wearing" 0.03 %/flight over a winter and a summer)
-    sensor_trend = shape == "wear" and "sensor:" in h.name
+    sensor_trend = shape == "wear" and "sensor:" in bank[di].name
     if shape in ("ramp", "wear"):
         floor = cfg.min_rate if shape == "ramp" or sensor_trend else 0.0
         big = size >= floor and size * (t[-1] - tau + 1) >= cfg.min_step
@@ -1259,7 +1284,7 @@ def _sensor_part(dec, D, Wt, S, t, bank, cfg, known, n_tests, es, rowsok) -> Non
     an HPT repair with T30 26 K high an hpt+sensor:T30 recovery. There a pure recovery's best
     sensor gains at most 3.5 (five washes and repairs), those biases 147-208."""
     comps = [h for h in bank if "sensor:" not in h.name]
-    sensors = [h for h in bank if h.name.startswith("sensor:")]
+    sensors = [h for h in bank if single_sensor(h.name)]
     cands = comps + [Hypothesis(f"{c.name}+{x.name}", c.columns + x.columns) for c in comps for x in sensors]
     fits = _fit_changes(D, Wt, S, t, [float(dec.onset)], "step", cands, cfg, trend=cfg.wear,
                         **_nuisance(known, dec.onset))
@@ -1338,6 +1363,11 @@ def _nuisance(known: list, before: float = np.inf) -> dict:
             "ramps": [(k.onset, k.rate) for k in known if k.shape == "ramp" and k.onset < before]}
 
 
+#: a change found as a drift is fitted again as a step, its onset moved by up to this many
+#: flights, once twice as many flights came after it (:func:`_stages`)
+REVISE_FLIGHTS = 2
+
+
 def _stages(D, Wt, S, t, bank, cfg, wear, known, level=None):
     """The fits of the stages of a flight's tests, in the order they are decided (each a list of
     (shape, fits of :func:`_fit_changes`)): deviations D (n, m) at flight numbers t (n,),
@@ -1350,8 +1380,20 @@ def _stages(D, Wt, S, t, bank, cfg, wear, known, level=None):
     found = [k for k in known if k.shape != "fleet"]
     if found:   # a new change after the changes found, measured from them; else the last one again
         last, new = found[-1], t[t > found[-1].onset][-cfg.window:]
-        again = fit(np.array([last.onset]), last.shape, **_nuisance([k for k in known if k is not last]))
-        return [[("step", fit(new, "step")), ("ramp", fit(new, "ramp"))], [(last.shape, again)]]
+        others = _nuisance([k for k in known if k is not last])
+        again = fit(np.array([last.onset]), last.shape, **others)
+        stages = [[("step", fit(new, "step")), ("ramp", fit(new, "ramp"))], [(last.shape, again)]]
+        # a drift also as a step near its onset, first when that locates the change better, once
+        # as many flights came after it as the shapes need to part (a step two flights old fitted
+        # a drift as well: confirmed so, its refit faded as the flights after stayed level, and the
+        # bias was lost). Not a step as a drift: early in a history the wear line takes a step's
+        # flights apart (a bias from the second flight read a drift from the third every other flight)
+        near = t[(np.abs(t - last.onset) <= REVISE_FLIGHTS) & (t > t[0])]
+        if last.shape == "ramp" and t[-1] - last.onset >= 2 * REVISE_FLIGHTS and near.size:
+            other = fit(near, "step", **others)
+            if other and again and max(f[5] for f in other) > max(f[5] for f in again):
+                stages.insert(1, [("step", other)])
+        return stages
     stages = _first_stages(fit, D, Wt, S, t, bank, cfg, wear, _nuisance(known)["steps"])
     if level is not None:
         # 3. nothing changed since the first flight: is the baseline itself off the fleet's?
@@ -1436,7 +1478,7 @@ def _component_wear(fit, bank, taus, shape) -> list:
     fan+sensor:Ps30 drift on every flight from 5 (at 0.03 %/flight, probe fleet C: sensor:Wf at
     5-6). A real sensor trend is a change the components fit worse (a T48 drift of 0.3 sigma a
     flight: T_all - T = +0.3 at flight 3, -110 at 17)."""
-    fits = fit(taus, shape, bank=bank)
+    fits = [f for f in fit(taus, shape, bank=bank) if not sensor_pair(bank[f[1]].name)]   # (not from delivery)
     comps = sorted({c for h in bank if "sensor:" not in h.name for c in h.columns})
     every = fit(taus, shape, bank=[Hypothesis("components", comps)])
     if not every:              # fewer channels than health parameters: no such comparison
@@ -1541,7 +1583,7 @@ def _one_sensor(x: np.ndarray, Wt: np.ndarray, S: np.ndarray, bank: list[Hypothe
     """Whether one sensor's bias explains the whitened change ``x`` to within ``cut`` (chi-square):
     an intermittent sensor fault, its own finding (:func:`_episodes`), not an excursion."""
     for h in bank:
-        if h.name.startswith("sensor:") and "+" not in h.name:
+        if single_sensor(h.name):
             a = Wt @ S[:, h.columns[0]]
             if a @ a > 0 and x @ x - (a @ x) ** 2 / (a @ a) <= cut:
                 return True
@@ -1747,14 +1789,15 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
             """dec decided on the tests of the flights ``use`` (bool over rowsok; default every one)
             measured from ``known``; the number of tests (0: none)."""
             u = np.ones(t.size, bool) if use is None else use
-            stages = _stages(D[u], Wt, Sbar_all, t[u], bank, cfg, wear and wear.at(Sbar_all, idx), known,
+            wide = bank + (sensor_pairs(bank) if cfg.pairs else [])      # (appended: bank's indices hold)
+            stages = _stages(D[u], Wt, Sbar_all, t[u], wide, cfg, wear and wear.at(Sbar_all, idx), known,
                              level.at(Sbar_all, idx) if level and first == 0 else None)
-            every = [f for stage in stages for _, fits in stage for f in fits]
+            every = [f for stage in stages for _, fits in stage for f in fits if f[1] < len(bank)]
             if every:
                 p_all = stats.chi2.sf([f[2] for f in every], [len(bank[f[1]].columns) for f in every]) * len(every)
                 dec.p_value = min(float(p_all.min()), 1.0)
                 for stage in stages:
-                    if stage and _decide(dec, stage, bank, Sbar_all, t[u], es, rowsok[u], len(every), cfg):
+                    if stage and _decide(dec, stage, wide, Sbar_all, t[u], es, rowsok[u], len(every), cfg):
                         break
             return len(every)
         n_tests = decide(dec, known)
@@ -1790,7 +1833,7 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
                 _left(dec, *left[-1], bank, es, rowsok)     # after its first flight: what is left
             else:
                 found.append(copy(dec))          # later flights measure a new change from it
-        if dec.detected and dec.cls.startswith("sensor:") and _frozen(es, k, rowsok[0], dec.cls[7:]):
+        if dec.detected and single_sensor(dec.cls) and _frozen(es, k, rowsok[0], dec.cls[7:]):
             dec.kind = "stuck"
         if dec.detected and any(number[j] < dec.onset and not np.any((number[rowsok] > number[j])
                                                                       & (number[rowsok] < dec.onset))
@@ -1809,7 +1852,10 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
         if finding[len(rows)] is not None and finding.get(len(rows) - 1) == finding[len(rows)] \
                 and dec.onset not in [f.onset for f in found]:
             found = [f for f in found if not _same_trend(f, dec)] + [copy(dec)]
-        if finding[len(rows)] is not None and finding[len(rows)][2] == "step" and dec.cls.startswith("sensor:"):
+        if (dec.detected and dec.kind == "step" and mine and mine[-1].kind == "drift" and dec.cls == mine[-1].cls
+                and abs(dec.onset - mine[-1].onset) <= REVISE_FLIGHTS and dec.onset != dec.flight):
+            found = [f for f in found if f is not mine[-1]] + [copy(dec)]     # a drift revised: a step (_stages)
+        if finding[len(rows)] is not None and finding[len(rows)][2] == "step" and single_sensor(dec.cls):
             seen.append((dec.onset, dec.cls))
         biased = _episodes(dec, known, seen, es, rowsok, D, Wt, Sbar_all, t, bank, cfg)
         mine = [f for f in found if f.onset >= number[first]]
@@ -2025,7 +2071,7 @@ def _episodes(dec: Decision, found: list, seen: list, es: EngineSeries, rowsok, 
     Returns the flight numbers the sensor read biased on when its bias is gone (``cleared``),
     else none."""
     none = np.zeros(0)
-    if not (dec.detected and dec.kind == "step" and dec.cls.startswith("sensor:")):
+    if not (dec.detected and dec.kind == "step" and single_sensor(dec.cls)):
         return none
     begin = min([o for o, c in seen if c == dec.cls and o >= t[0]] + [dec.onset])
     start = max([t[0]] + [k.onset for k in found if k.cls != dec.cls and k.onset < begin])
