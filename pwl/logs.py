@@ -751,7 +751,9 @@ def csv_frame(path):
     header (comma, semicolon, tab, else runs of spaces); decimal comma or point (:func:`_decimal`); UTF-8, UTF-16 with a
     byte-order mark or cp1252 (:func:`_encoding`); empty cells NaN. Leading ``#`` comment lines
     and blank lines are skipped; a row of units under the header (``rpm, K, kPa, ...``: no cell a
-    number) declares the units (:func:`_units_of_row`). Compressed files (:data:`_COMPRESSED`) are read as they are."""
+    number) declares the units (:func:`_units_of_row`); rows that repeat the header (files joined
+    end to end) are left out (:func:`_without_repeated_header`). Compressed files
+    (:data:`_COMPRESSED`) are read as they are."""
     import pandas as pd
     encoding = _encoding(path)
     with _open_text(path, encoding) as fh:
@@ -769,6 +771,7 @@ def csv_frame(path):
         line = line.rstrip("\r\n")
         return line.split() if sep == r"\s+" else next(csv.reader([line], delimiter=sep), [])
     cells = split(header)
+    again = [cells, split(first)]           # the header and the line under it, as a file joined on would repeat them
     unit_row = _unit_row(split(first), cells)
     skiprows = list(range(skip)) + ([skip + 1] if unit_row else [])
     if unit_row:
@@ -791,11 +794,32 @@ def csv_frame(path):
             raise LogError(f"{path}: row {len(skiprows) + 2} has more fields than the header ({len(cells)})") from None
     if len(cells) != df.shape[1]:
         raise LogError(f"{path}: the header has {len(cells)} fields, pandas read {df.shape[1]} columns")
+    df = _without_repeated_header(path, df, again[: 1 + bool(unit_row)])
     if len(cells) > 1 and df.shape[0] and df.iloc[:, -1].isna().any():     # short rows read as NaN
         _check_row_lengths(path, sep, len(cells), skip=len(skiprows) + 1, encoding=encoding)
     if decimal == ",":
         _points(df)
     return df, cells
+
+
+def _without_repeated_header(path, df, heads: list[list[str]]):
+    """``df`` without its rows that repeat the header (or the row of units under it) cell for cell:
+    files joined end to end (``cat a.csv b.csv``), each with its header; named in a PwlWarning.
+    Their columns are then text, converted as numbers later (:func:`_numeric`)."""
+    import pandas as pd
+    text = [j for j in range(df.shape[1]) if not pd.api.types.is_numeric_dtype(df.dtypes.iloc[j])]
+    if len(text) < df.shape[1] or not df.shape[0]:
+        return df                            # (a numeric column holds no header cell)
+    cells = [df.iloc[:, j].astype(str).str.strip() for j in range(df.shape[1])]
+    hit = np.zeros(df.shape[0], dtype=bool)
+    for head in heads:
+        if len(head) == df.shape[1]:
+            hit |= np.logical_and.reduce([(c == h.strip()).to_numpy() for c, h in zip(cells, head)])
+    if not hit.any():
+        return df
+    warnings.warn(PwlWarning(f"{path}: {int(hit.sum())} row(s) repeat the header or its units (the first at sample "
+                             f"{int(np.flatnonzero(hit)[0])}): files joined end to end? Read past them"), stacklevel=4)
+    return df[~hit].reset_index(drop=True)
 
 
 #: a number written with a decimal comma (``0,015``, ``-2,5E3``), or with thousands separators
@@ -962,6 +986,31 @@ def parquet_frame(path):
         raise LogError(f"{path}: reading Parquet needs pyarrow: pip install 'pwl[parquet]'") from None
     import pandas as pd
     return pd.read_parquet(path, engine="pyarrow")
+
+
+def excel_frame(path):
+    """(DataFrame, header cells) of an Excel workbook's first sheet (``.xlsx``, ``.xlsm``; openpyxl,
+    a LogError saying how to install it): the first non-empty row the header, a row of units under
+    it read as :func:`csv_frame` reads one, empty rows skipped, cells as Excel holds them (numbers,
+    date-times, text)."""
+    try:
+        importlib.import_module("openpyxl")
+    except ImportError:
+        raise LogError(f"{path}: reading an Excel workbook needs openpyxl: pip install 'pwl[excel]' "
+                       "(or save the sheet as CSV)") from None
+    import pandas as pd
+    raw = pd.read_excel(path, sheet_name=0, header=None, engine="openpyxl").dropna(how="all")
+    if raw.empty:
+        raise LogError(f"{path}: the first sheet is empty")
+    text = [["" if pd.isna(c) else str(c) for c in row] for row in raw.iloc[:2].itertuples(index=False)]
+    cells = text[0]
+    units = _unit_row(text[1], cells) if len(text) > 1 else None
+    if units:
+        cells = [c if _split_header(c)[1] or not u.strip() else f"{c.strip()}[{u.strip()}]"
+                 for c, u in zip(cells, _units_of_row(path, 2, cells, units))]
+    df = raw.iloc[1 + bool(units):].reset_index(drop=True)
+    df.columns = range(df.shape[1])
+    return df.infer_objects(), cells
 
 
 #: MATLAB variables that are not data

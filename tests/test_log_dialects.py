@@ -388,3 +388,22 @@ def test_duplicate_columns_left_out_unless_needed(tmp_path):
     df.to_csv(tmp_path / "t48.csv", index=False)
     with pytest.warns(PwlWarning, match=r"no 'T48' channel \(.*t48.csv: duplicate column 'T48': its copies differ"):
         Estimator(db_path).run(read_log(tmp_path / "t48.csv"))
+
+
+@pytest.mark.parametrize("units", [None, ["s", "rpm", "K", "Pa", "kg/s"]])
+def test_files_joined_end_to_end_are_read_past_their_headers(tmp_path, units):
+    """A log exported in three parts and joined end to end (``cat``), each part with its header
+    (and row of units): every value exactly as written, and one warning naming the repeats.
+    Before, the repeated header was 'non-numeric value 'time' at sample ...' and the log failed."""
+    rows = rows_of()
+    lines = []
+    for part in (rows[:40], rows[40:90], rows[90:]):
+        lines += [",".join(NAMES)] + ([",".join(units)] if units else []) + [",".join(r) for r in part]
+    path = tmp_path / "joined.csv"
+    path.write_text("\n".join(lines) + "\n")
+    n_rep = 2 * (1 + bool(units))
+    with pytest.warns(PwlWarning, match=rf"{n_rep} row\(s\) repeat the header or its units \(the first at sample 40\)"):
+        log = read_log(path)
+    assert_values(log)
+    if units:
+        assert log.units["T48"] == "K" and log.units["Nf"] == "rpm"
