@@ -414,3 +414,27 @@ def test_a_step_first_fitted_as_a_drift_is_revised_and_not_lost(tmp_path, db):
     late = got[24:]
     assert all(d.detected and d.cls == "sensor:Ps30" and d.kind == "step" and d.onset == 20
                and d.earlier == "sensor:T48@12" for d in late), [(d.flight, d.cls, d.kind, d.onset, d.earlier) for d in late]
+
+
+def test_a_table_as_an_excel_workbook(tmp_path, db, plan):
+    """The table saved from Excel (first sheet, a row of units under the header declaring T48 in
+    degC, flight times as Excel date-times): the CSV's flights and values within 1e-12; a sheet
+    pwl does not read (.ods) is an error saying what to do. Before, a workbook was 'unreadable
+    results file (OSError: ... file signature not found)'."""
+    import pandas as pd
+
+    rows = table_rows(plan)[:48]
+    native = read_snapshot_table(write_table(tmp_path / "a.csv", rows), db)
+    df = pd.DataFrame(rows)
+    df["flight_time"] = pd.to_datetime(df["flight_time"])
+    df["T48"] = df["T48"] - 273.15
+    units = pd.DataFrame([{c: "degC" if c == "T48" else "" for c in df.columns}])
+    pd.concat([units, df.astype(object)]).to_excel(tmp_path / "t.xlsx", index=False)
+    book = read_snapshot_table(str(tmp_path / "t.xlsx"), db)
+    assert [(r.engine, r.label) for r in book] == [(r.engine, r.label) for r in native]
+    for a, b in zip(book, native):
+        ja = [a.snapshot.channels.index(c) for c in b.snapshot.channels]
+        np.testing.assert_allclose(a.snapshot.mean[:, ja], b.snapshot.mean, rtol=1e-12)
+    (tmp_path / "t.ods").write_bytes(b"PK")
+    with pytest.raises(DiagnosisError, match=r"t.ods: a spreadsheet pwl does not read.*save the sheet as .xlsx or CSV"):
+        read_snapshot_table(str(tmp_path / "t.ods"), db)

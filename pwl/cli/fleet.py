@@ -31,7 +31,7 @@ def add_arguments(p):
                                    "are skipped and named, and the exit status is then 1")
     d.add_argument("results", nargs="+",
                    help="results files or folders (walked recursively) of pwl run, or snapshot tables "
-                        "(.csv, .tsv, .parquet: one row per steady snapshot, docs/diagnostics.md; they need "
+                        "(.csv, .tsv, .parquet, .xlsx: one row per steady snapshot, docs/diagnostics.md; they need "
                         "--database)")
     d.add_argument("-o", "--output", default="diagnosis.csv", help="CSV to write (default %(default)s)")
     d.add_argument("--database", help="gain database (default: the one recorded in the results)")

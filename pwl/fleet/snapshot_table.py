@@ -1,8 +1,8 @@
 """Snapshot tables: steady snapshots another system wrote, diagnosed like those of ``pwl run``.
 
 Engine-monitoring reports (and ProDiMES) give no flight logs but a few steady readings per flight,
-at take-off, climb or cruise. A snapshot table holds them, one row per snapshot (CSV, Parquet, or
-a pandas DataFrame)::
+at take-off, climb or cruise. A snapshot table holds them, one row per snapshot (CSV, Parquet, an
+Excel workbook's first sheet, or a pandas DataFrame)::
 
     engine,flight,flight_time,regime,alt,Mach,T2,P2,Nf,Nc,T24,Ps30,T30,T48,P50,P15,Wf
     ESN001,0,2026-01-01T00:00:00,cruise,9166.5,0.782,260.93,44759.8,3718.8,13245.5,...
@@ -52,7 +52,7 @@ import numpy as np
 
 from ..database import GainDatabase
 from ..errors import PwlWarning
-from ..logs import LogError, _from_columns, _split_header, csv_frame, parquet_frame
+from ..logs import LogError, _from_columns, _split_header, csv_frame, excel_frame, parquet_frame
 from ..snapshots import Snapshots
 from ..units import implausible_hint
 from .diagnose import FlightRecord, _natural, _whole, assign_regimes, flight_seconds, one_spelling
@@ -66,13 +66,17 @@ _ROW = "__row__"
 
 
 def is_snapshot_table(path) -> bool:
-    """Whether ``path`` names a snapshot table by its extension (CSV, TSV, Parquet; compressed
-    CSV too)."""
+    """Whether ``path`` names a snapshot table by its extension (CSV, TSV, Parquet, a spreadsheet;
+    compressed CSV too)."""
     p = os.fspath(path).lower()
     for z in (".gz", ".bz2", ".xz", ".zip"):
         if p.endswith(z):
             p = p[: -len(z)]
-    return p.endswith((".csv", ".tsv", ".parquet"))
+    return p.endswith((".csv", ".tsv", ".parquet") + _SPREADSHEETS)
+
+
+#: spreadsheet extensions: Excel's own read (:func:`pwl.logs.excel_frame`), the others named
+_SPREADSHEETS = (".xlsx", ".xlsm", ".xls", ".ods")
 
 
 def _frame(source):
@@ -87,6 +91,11 @@ def _frame(source):
         if path.lower().endswith(".parquet"):
             df = parquet_frame(path)
             return path, df, [str(c) for c in df.columns]
+        if path.lower().endswith((".xlsx", ".xlsm")):
+            df, cells = excel_frame(path)
+            return path, df, cells
+        if path.lower().endswith(_SPREADSHEETS):
+            raise DiagnosisError(f"{path}: a spreadsheet pwl does not read (.xls, .ods): save the sheet as .xlsx or CSV")
         df, cells = csv_frame(path)
         return path, df, cells
     except LogError as e:
@@ -125,7 +134,8 @@ def read_snapshot_table(source, db: GainDatabase, channel_map=None) -> list[Flig
     Parameters
     ----------
     source : str, path-like or pandas.DataFrame
-        The table: ``.csv``/``.tsv`` (compressed too) or ``.parquet``, or a DataFrame.
+        The table: ``.csv``/``.tsv`` (compressed too), ``.parquet`` or ``.xlsx``/``.xlsm`` (the first
+        sheet; openpyxl), or a DataFrame.
     db : GainDatabase
         The database the snapshots are diagnosed with: which channels are read, their units
         and plausible ranges, and the operating point of each row.
