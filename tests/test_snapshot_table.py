@@ -3,6 +3,7 @@ without flight logs. The fleet is the nonlinear plant's steady states (models.fl
 the plant's trims with the engines' true health, day and sensor faults), not the database's."""
 import csv
 import os
+import warnings
 
 import numpy as np
 import pytest
@@ -438,3 +439,18 @@ def test_a_table_as_an_excel_workbook(tmp_path, db, plan):
     (tmp_path / "t.ods").write_bytes(b"PK")
     with pytest.raises(DiagnosisError, match=r"t.ods: a spreadsheet pwl does not read.*save the sheet as .xlsx or CSV"):
         read_snapshot_table(str(tmp_path / "t.ods"), db)
+
+
+def test_airline_flight_numbers_are_labels(tmp_path, db, plan):
+    """A flight column of airline flight numbers (LH400 one day, LH401 the next, ...): one warning
+    for the column (before, one per flight), each day's flight a flight of its own in time order."""
+    rows = [dict(r, flight=f"LH40{r['flight'] % 2}") for r in table_rows(plan)[:48]]
+    with warnings.catch_warnings(record=True) as got:
+        warnings.simplefilter("always")
+        recs = read_snapshot_table(write_table(tmp_path / "t.csv", rows), db)
+    said = [str(w.message) for w in got if issubclass(w.category, PwlWarning)]
+    assert len(said) == 1 and "column 'flight': 2 of 2 flight values are not whole numbers (the first 'LH400')" in said[0]
+    assert len(recs) == 24 and all(len(r.snapshot) == 2 and r.index == -1 for r in recs)
+    for e in {r.engine for r in recs}:
+        mine = sorted((r for r in recs if r.engine == e), key=lambda r: r.time)
+        assert [r.label for r in mine] == [f"flight LH40{k % 2}" for k in range(12)]

@@ -55,7 +55,7 @@ from ..errors import PwlWarning
 from ..logs import LogError, _from_columns, _split_header, csv_frame, excel_frame, parquet_frame
 from ..snapshots import Snapshots
 from ..units import implausible_hint
-from .diagnose import FlightRecord, _natural, _whole, assign_regimes, flight_seconds, one_spelling
+from .diagnose import FlightRecord, _natural, assign_regimes, flight_seconds, one_spelling
 from .signatures import DiagnosisError
 
 ENGINE_NAMES = ("engine", "esn", "serial", "engine_serial")
@@ -154,7 +154,8 @@ def read_snapshot_table(source, db: GainDatabase, channel_map=None) -> list[Flig
     ------
     DiagnosisError
         Naming the table and the column or row: no engine or flight column, a scheduling or inlet
-        channel missing, a unit that cannot be converted, a flight number that is not whole.
+        channel missing, a unit that cannot be converted (a flight value that is not a whole
+        number is a label: warned, :func:`_flight_numbers`).
     """
     path, df, cells = _frame(source)
     heads = [_split_header(c) for c in cells]
@@ -191,7 +192,8 @@ def read_snapshot_table(source, db: GainDatabase, channel_map=None) -> list[Flig
             raise DiagnosisError(f"{path}: row {k + 2} has no engine")
         if not fl and not tm:
             raise DiagnosisError(f"{path}: row {k + 2} (engine {e}) has neither flight number nor time")
-    record = partial(_record, path, db, chans, X, P, count)
+    record = partial(_record, path, db, chans, X, P, count, _flight_numbers(path, names[i_f], column["flight"])
+                     if i_f is not None else {})
     keep = np.flatnonzero(~repeat)
     if i_f is not None:
         return [record(e, fl, tm, rows) for e, fl, tm, rows in _numbered_flights(column, keep)]
@@ -252,11 +254,31 @@ def _times(path, name: str, values: list[str], needed: bool) -> list[str]:
 FLIGHT_GAP_HOURS = 12.0
 
 
-def _record(path, db, chans, X, P, count, engine, fl, tm, rows) -> FlightRecord:
-    """The FlightRecord of one engine's flight: table rows ``rows`` (sorted), flight number
-    ``fl`` ('' when none) and time ``tm``."""
+def _flight_numbers(path, name: str, values: list[str]) -> dict[str, int]:
+    """The flight column's cells -> whole numbers (-1 for one that is not: an airline's flight
+    number 'LH400' is a label, the flights then ordered by their times), the cells that are not
+    named once in a PwlWarning."""
+    out, bad = {}, []
+    for v in dict.fromkeys(v for v in values if v):
+        try:
+            f = float(v)
+            out[v] = int(f) if f == int(f) else -1
+        except (ValueError, OverflowError):
+            out[v] = -1
+        if out[v] < 0:
+            bad.append(v)
+    if bad:
+        warnings.warn(PwlWarning(f"{path}: column {name!r}: {len(bad)} of {len(out)} flight values are not whole "
+                                 f"numbers (the first {bad[0]!r}): read as labels, the flights ordered by their "
+                                 "times (else by their labels)"), stacklevel=3)
+    return out
+
+
+def _record(path, db, chans, X, P, count, numbers, engine, fl, tm, rows) -> FlightRecord:
+    """The FlightRecord of one engine's flight: table rows ``rows`` (sorted), flight ``fl`` ('' when
+    none; its number from ``numbers``, :func:`_flight_numbers`) and time ``tm``."""
     rows = np.sort(np.asarray(rows))
-    fidx = _whole(fl, f"{path}: row {rows[0] + 2}") if fl else -1
+    fidx = numbers.get(fl, -1)
     snap = Snapshots(chans, list(db.names["p"]), rows.astype(np.float64), rows.astype(np.float64),
                      count[rows], X[rows], np.full((rows.size, len(chans)), np.nan),
                      np.isfinite(X[rows]).astype(np.float64), P[rows])
