@@ -153,7 +153,7 @@ def test_a_table_without_a_sensor_reads_it_missing(tmp_path, db, plan):
     assert np.isnan(recs[0].snapshot.mean[:, j]).all() and not recs[0].snapshot.finite[:, j].any()
 
 
-def test_pwl_fleet_diagnose_takes_a_table(tmp_path, db, capsys):
+def test_pwl_fleet_diagnose_takes_a_table(tmp_path, db, capsys, monkeypatch):
     """The command line: a table needs --database (exit 2, said); with it, one row per flight."""
     out = str(tmp_path / "d.csv")
     assert main(["fleet", "simulate", "--snapshots", "--engines", "4", "--flights", "6", "-o",
@@ -167,6 +167,20 @@ def test_pwl_fleet_diagnose_takes_a_table(tmp_path, db, capsys):
     assert main(["trend", table, "--database", demo_paths()[0], "--engine", "ESN001", "--fleet", table]) in (0, 1)
     text = capsys.readouterr().out
     assert "engine ESN001: 6 flights" in text and "snapshot tables carry no filter health" in text
+    # its plot: the deviations the diagnosis tested (a table has no filter health to draw)
+    from pwl.fleet.trending import engine_trend, plot_trend
+    recs = read_snapshot_table(table, db)
+    tr = engine_trend([r for r in recs if r.engine == "ESN001"], db, fleet=recs)
+    assert tr.deviations.shape == (6, len(tr.channels)) and np.isfinite(tr.deviations).any()
+    pytest.importorskip("matplotlib")
+    import matplotlib.figure
+    titles, real = [], matplotlib.figure.Figure.savefig
+    def spy(fig, *a, **k):
+        titles.extend(ax.get_title() for ax in fig.axes if ax.get_title())
+        return real(fig, *a, **k)
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", spy)
+    plot_trend(tr, tmp_path / "t.png")
+    assert titles == list(dict.fromkeys(c.split("@")[0] for c in tr.channels)) and os.path.getsize(tmp_path / "t.png") > 0
     assert main(["trend", table, "--database", demo_paths()[0], "--engine", "ESN404"]) == 2
     assert main(["fleet", "diagnose", table, "--database", demo_paths()[0], "-o", out, "-j", "1"]) == 0
     with open(out) as fh:

@@ -114,6 +114,11 @@ class EngineTrend:
     decisions: list[Decision]
     units: dict[str, str] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    #: the snapshots' relative deviations from the model (n, m R), channels ``<channel>@<regime>``
+    #: (:class:`~pwl.fleet.diagnose.EngineSeries`): what the diagnosis tests, plotted when there is
+    #: no filter health (snapshot tables)
+    deviations: np.ndarray | None = None
+    channels: list[str] = field(default_factory=list)
 
     @property
     def latest(self) -> Decision:
@@ -231,16 +236,19 @@ def engine_trend(records: list[FlightRecord], db: GainDatabase,
     else:
         level, b, se = (H[ok][-1] if x.size else np.full(nh, np.nan)), np.full(nh, np.nan), np.full(nh, np.nan)
     return EngineTrend(es.engine, [f.label for f in es.flights], es.h_names, H, level, b, se, dec,
-                       detail_units(db), health_notes(es))
+                       detail_units(db), health_notes(es), es.D, list(es.channels))
 
 
 def plot_trend(tr: EngineTrend, path, truth: np.ndarray | None = None) -> None:
     """PNG of every health estimate (%) over flights with its trend line and the detected fault
-    (matplotlib, the ``plot`` extra)."""
+    (matplotlib, the ``plot`` extra); without any health estimate (a snapshot table), of the
+    snapshots' deviations the diagnosis tested instead (:func:`_plot_deviations`)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    if not np.isfinite(tr.H).any() and tr.deviations is not None:
+        return _plot_deviations(tr, path, plt)
     nh = len(tr.names)
     cols = min(nh, 5)
     rows = (nh + cols - 1) // cols
@@ -271,6 +279,38 @@ def plot_trend(tr: EngineTrend, path, truth: np.ndarray | None = None) -> None:
     title = (f"engine {tr.engine}: {d.cls} {d.kind} from flight {d.onset} ({tr.detail(d)})" if d.detected
              else f"engine {tr.engine}: no fault detected")
     fig.suptitle(title, fontsize=9, color="red" if d.detected else "black")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _plot_deviations(tr: EngineTrend, path, plt) -> None:
+    """PNG of each channel's relative deviation from the model (%) over flights, one panel per
+    channel, a series per operating regime, the detected fault's onset and sensors marked."""
+    base = list(dict.fromkeys(c.split("@")[0] for c in tr.channels))
+    cols = min(len(base), 4)
+    rows = (len(base) + cols - 1) // cols
+    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.6 * rows + 0.5), squeeze=False)
+    x = np.arange(tr.deviations.shape[0])
+    d = tr.latest
+    flagged = {p.split(":", 1)[1] for p in d.cls.split("+") if p.startswith("sensor:")} if d.detected else set()
+    for j, c in enumerate(base):
+        ax = axes[j // cols][j % cols]
+        for k, name in enumerate(tr.channels):
+            if name.split("@")[0] == c:
+                ax.plot(x, 100 * tr.deviations[:, k], "o-", ms=3, lw=0.6, label=f"regime {name.split('@')[1]}")
+        if d.detected and d.onset >= 0:
+            ax.axvline(d.onset - 0.5, color="red", lw=0.8, ls=":")
+        ax.set_title(c, fontsize=8, color="red" if c in flagged else "black")
+        ax.set_xlabel("flight")
+        ax.set_ylabel("deviation from the model, %")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=6, loc="upper left")
+    for j in range(len(base), rows * cols):
+        axes[j // cols][j % cols].axis("off")
+    title = (f"engine {tr.engine}: {d.cls} {d.kind} from flight {d.onset} ({tr.detail(d)})" if d.detected
+             else f"engine {tr.engine}: no fault detected")
+    fig.suptitle(title + " -- snapshot deviations (no filter health)", fontsize=9, color="red" if d.detected else "black")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
