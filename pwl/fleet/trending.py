@@ -242,75 +242,56 @@ def engine_trend(records: list[FlightRecord], db: GainDatabase,
 def plot_trend(tr: EngineTrend, path, truth: np.ndarray | None = None) -> None:
     """PNG of every health estimate (%) over flights with its trend line and the detected fault
     (matplotlib, the ``plot`` extra); without any health estimate (a snapshot table), of the
-    snapshots' deviations the diagnosis tested instead (:func:`_plot_deviations`)."""
+    snapshots' relative deviations from the model the diagnosis tested instead: a panel per
+    channel, a series per operating regime, the fault's sensors in red."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    if not np.isfinite(tr.H).any() and tr.deviations is not None:
-        return _plot_deviations(tr, path, plt)
-    nh = len(tr.names)
-    cols = min(nh, 5)
-    rows = (nh + cols - 1) // cols
-    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.6 * rows + 0.5), squeeze=False)
+    d = tr.latest
+    parts = d.cls.split("+") if d.detected else []
     x = np.arange(tr.H.shape[0])
-    d = tr.latest
-    flagged = set()
-    if d.detected:
-        for part in d.cls.split("+"):
-            flagged |= {n for n in tr.names if n.startswith(part + "_") or n == part}
-    for j, n in enumerate(tr.names):
-        ax = axes[j // cols][j % cols]
-        ax.plot(x, 100 * tr.H[:, j], "o", ms=3, label="estimate")
-        if np.isfinite(tr.slope[j]):
-            ax.plot(x, 100 * (tr.level[j] + tr.slope[j] * (x - x[-1])), "-", lw=1, color="C1",
-                    label=f"trend {100 * tr.slope[j]:+.3f} %/flight")
-        if truth is not None:
-            ax.plot(x, 100 * truth[:, j], "k--", lw=1, label="truth")
-        if d.detected and d.onset >= 0:
-            ax.axvline(d.onset - 0.5, color="red", lw=0.8, ls=":")
-        ax.set_title(n, fontsize=8, color="red" if n in flagged else "black")
-        ax.set_xlabel("flight")
-        ax.set_ylabel("health estimate, %")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=6, loc="lower left")
-    for j in range(nh, rows * cols):
-        axes[j // cols][j % cols].axis("off")
-    title = (f"engine {tr.engine}: {d.cls} {d.kind} from flight {d.onset} ({tr.detail(d)})" if d.detected
-             else f"engine {tr.engine}: no fault detected")
-    fig.suptitle(title, fontsize=9, color="red" if d.detected else "black")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    if not np.isfinite(tr.H).any() and tr.deviations is not None:
+        names = list(dict.fromkeys(c.split("@")[0] for c in tr.channels))
+        flagged = {p.split(":", 1)[1] for p in parts if p.startswith("sensor:")}
 
+        def draw(ax, j, name):
+            for k, c in enumerate(tr.channels):
+                if c.split("@")[0] == name:
+                    ax.plot(x, 100 * tr.deviations[:, k], "o-", ms=3, lw=0.6, label=f"regime {c.split('@')[1]}")
+            ax.legend(fontsize=6, loc="upper left")
+        how = ("deviation from the model, %", 4, " -- snapshot deviations (no filter health)")
+    else:
+        names = tr.names
+        flagged = {n for n in names for p in parts if n.startswith(p + "_") or n == p}
 
-def _plot_deviations(tr: EngineTrend, path, plt) -> None:
-    """PNG of each channel's relative deviation from the model (%) over flights, one panel per
-    channel, a series per operating regime, the detected fault's onset and sensors marked."""
-    base = list(dict.fromkeys(c.split("@")[0] for c in tr.channels))
-    cols = min(len(base), 4)
-    rows = (len(base) + cols - 1) // cols
+        def draw(ax, j, name):
+            ax.plot(x, 100 * tr.H[:, j], "o", ms=3, label="estimate")
+            if np.isfinite(tr.slope[j]):
+                ax.plot(x, 100 * (tr.level[j] + tr.slope[j] * (x - x[-1])), "-", lw=1, color="C1",
+                        label=f"trend {100 * tr.slope[j]:+.3f} %/flight")
+            if truth is not None:
+                ax.plot(x, 100 * truth[:, j], "k--", lw=1, label="truth")
+            ax.legend(fontsize=6, loc="lower left")
+        how = ("health estimate, %", 5, "")
+    ylabel, most, note = how
+    cols = min(len(names), most)
+    rows = (len(names) + cols - 1) // cols
     fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.6 * rows + 0.5), squeeze=False)
-    x = np.arange(tr.deviations.shape[0])
-    d = tr.latest
-    flagged = {p.split(":", 1)[1] for p in d.cls.split("+") if p.startswith("sensor:")} if d.detected else set()
-    for j, c in enumerate(base):
+    for j, name in enumerate(names):
         ax = axes[j // cols][j % cols]
-        for k, name in enumerate(tr.channels):
-            if name.split("@")[0] == c:
-                ax.plot(x, 100 * tr.deviations[:, k], "o-", ms=3, lw=0.6, label=f"regime {name.split('@')[1]}")
+        draw(ax, j, name)
         if d.detected and d.onset >= 0:
             ax.axvline(d.onset - 0.5, color="red", lw=0.8, ls=":")
-        ax.set_title(c, fontsize=8, color="red" if c in flagged else "black")
+        ax.set_title(name, fontsize=8, color="red" if name in flagged else "black")
         ax.set_xlabel("flight")
-        ax.set_ylabel("deviation from the model, %")
+        ax.set_ylabel(ylabel)
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=6, loc="upper left")
-    for j in range(len(base), rows * cols):
+    for j in range(len(names), rows * cols):
         axes[j // cols][j % cols].axis("off")
     title = (f"engine {tr.engine}: {d.cls} {d.kind} from flight {d.onset} ({tr.detail(d)})" if d.detected
              else f"engine {tr.engine}: no fault detected")
-    fig.suptitle(title + " -- snapshot deviations (no filter health)", fontsize=9, color="red" if d.detected else "black")
+    fig.suptitle(title + note, fontsize=9, color="red" if d.detected else "black")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
