@@ -325,15 +325,23 @@ def read_flight(path, engine_pattern: str | None = None) -> FlightRecord:
     return FlightRecord(str(engine), (str(ftime), fidx, _natural(name)), path, label, snaps, *prov)
 
 
-def _whole(v, path) -> int:
-    """A flight_index attribute as an int; -1 (none), named in a PwlWarning, when it is not a
-    whole number (text such as 'F003', NaN)."""
+def whole_number(v) -> int | None:
+    """A flight number (an attribute, a table cell) as an int; None when it is not a whole number
+    (text such as 'F003' or 'LH400', NaN)."""
     try:
         f = float(np.asarray(v).reshape(-1)[0] if np.ndim(v) else v)
         if f == int(f):
             return int(f)
     except (TypeError, ValueError, OverflowError, IndexError):
         pass
+    return None
+
+
+def _whole(v, path) -> int:
+    """A flight_index attribute as an int (:func:`whole_number`); -1 (none), named in a
+    PwlWarning, when it is not a whole number."""
+    if (n := whole_number(v)) is not None:
+        return n
     warnings.warn(PwlWarning(f"{path}: flight_index {v!r} is not a whole number: ignored"), stacklevel=3)
     return -1
 
@@ -464,7 +472,7 @@ class EngineSeries:
     h_names: list[str]
     input_names: list[str] = field(default_factory=list)
     #: values read as missing for a deviation beyond :data:`GROSS_DEVIATION`: (flight position,
-    #: channel, regime, relative deviation, raw value)
+    #: channel, relative deviation, raw value)
     gross: list[tuple] = field(default_factory=list)
 
 
@@ -496,7 +504,7 @@ def engine_series(flights: list[FlightRecord], sig: Signatures, n_regimes: int) 
             except KeyError as e:
                 raise DiagnosisError(f"{r.source}: snapshot lacks channel {e} the database needs") from None
             for j in np.flatnonzero(np.abs(dev.d) > GROSS_DEVIATION):
-                gross.append((i, dev.channels[j], reg, float(dev.d[j]), float(mean[dev.channels[j]])))
+                gross.append((i, dev.channels[j], float(dev.d[j]), float(mean[dev.channels[j]])))
                 dev.d[j] = dev.se[j] = np.nan
             cols = slice(reg * m, (reg + 1) * m)
             D[i, cols], SE[i, cols], S[i, cols] = dev.d, dev.se, dev.S
@@ -517,7 +525,7 @@ def gross_note(series: list[EngineSeries], units: dict) -> list[str]:
     from ..units import likely_units
     by: dict[str, list] = {}
     for es in series:
-        for i, c, _, d, raw in es.gross:
+        for i, c, d, raw in es.gross:
             by.setdefault(c, []).append((es.engine, es.flights[i].label, d, raw))
     out = []
     for c, hits in by.items():

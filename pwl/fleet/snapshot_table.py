@@ -55,7 +55,7 @@ from ..errors import PwlWarning
 from ..logs import LogError, _from_columns, _split_header, csv_frame, excel_frame, parquet_frame
 from ..snapshots import Snapshots
 from ..units import implausible_hint
-from .diagnose import FlightRecord, _natural, assign_regimes, flight_seconds, one_spelling
+from .diagnose import FlightRecord, _natural, assign_regimes, flight_seconds, one_spelling, whole_number
 from .signatures import DiagnosisError
 
 ENGINE_NAMES = ("engine", "esn", "serial", "engine_serial")
@@ -258,15 +258,9 @@ def _flight_numbers(path, name: str, values: list[str]) -> dict[str, int]:
     """The flight column's cells -> whole numbers (-1 for one that is not: an airline's flight
     number 'LH400' is a label, the flights then ordered by their times), the cells that are not
     named once in a PwlWarning."""
-    out, bad = {}, []
-    for v in dict.fromkeys(v for v in values if v):
-        try:
-            f = float(v)
-            out[v] = int(f) if f == int(f) else -1
-        except (ValueError, OverflowError):
-            out[v] = -1
-        if out[v] < 0:
-            bad.append(v)
+    out = {v: whole_number(v) for v in dict.fromkeys(v for v in values if v)}
+    bad = [v for v, n in out.items() if n is None]
+    out = {v: -1 if n is None else n for v, n in out.items()}
     if bad:
         warnings.warn(PwlWarning(f"{path}: column {name!r}: {len(bad)} of {len(out)} flight values are not whole "
                                  f"numbers (the first {bad[0]!r}): read as labels, the flights ordered by their "
