@@ -506,6 +506,51 @@ def test_wear_reference_is_the_fleets_median_and_spread_of_wear_rates():
     assert wear_reference(fleet[:7], Sigma) is None          # too few engines: no reference
 
 
+@pytest.mark.parametrize("sd", [5e-3, 2e-2])
+def test_trend_spread_is_the_wear_rates_spread_without_their_estimates_scatter(sd):
+    """The engine-to-engine variance of the wear rates per health parameter that the fleet's
+    wear lines show without their own estimation scatter (``trend_spread`` s2) is within a
+    factor 2 of the variance the rates were drawn with (U(-1e-3, 0): 1e-6 / 12), over three
+    fleets of 60 engines, also where the scatter of the estimates is 4-12 times it (the robust
+    spread per parameter, ``spread``, is then that much too wide)."""
+    from pwl.fleet.diagnose import wear_reference
+    for seed in (4, 5, 6):
+        fleet, rates, Sigma = wear_fleet(n_engines=60, seed=seed, sd=sd)
+        ref = wear_reference(fleet, Sigma)
+        assert 0.5 < ref.trend_spread[0] / (1e-6 / 12) < 2.0
+        assert 0.0 <= ref.trend_spread[1] < 1e-2       # nothing beyond health: the bound only
+
+
+def test_a_held_wear_line_is_the_least_squares_fit_with_the_fleets_slope_as_data():
+    """_held_slope's change estimate and covariance equal the stacked weighted least squares of
+    every channel's level, slope, step nuisance and change, with the fleet's slope (mean,
+    covariance) as m more observations of the slopes (to 1e-12)."""
+    from pwl.fleet.diagnose import _held_slope, _shape
+    rng = np.random.default_rng(1)
+    n, m = 12, 6
+    t = np.arange(n, dtype=float)
+    Wt = np.linalg.inv(np.linalg.cholesky(np.cov(rng.normal(size=(m, 3 * m)))))
+    B = rng.normal(size=(m, 2))
+    mean, cov = rng.normal(size=m) * 0.1, B @ B.T + np.diag(rng.uniform(0.01, 0.1, m))
+    D = rng.normal(size=(n, m))
+    X = np.column_stack([np.ones(n), t - t.mean(), _shape(t, 4, "step")])
+    Xp = np.linalg.pinv(X)
+    F = _shape(t[:, None], np.array([[6.0, 8.0]]), "ramp")
+    G = F - X @ (Xp @ F)
+    g2 = np.sum(G * G, axis=0)
+    WD, C = _held_slope(D, Wt, X, Xp, F, (D.T @ G / g2).T @ Wt.T, g2, (mean, cov))
+    L = np.linalg.inv(np.linalg.cholesky(Wt @ cov @ Wt.T))
+    for k in range(2):
+        A = np.kron(np.eye(m), np.column_stack([X, F[:, k]]))        # per channel: level, slope, step, change
+        P = np.zeros((m, 4 * m))
+        P[np.arange(m), 4 * np.arange(m) + 1] = 1.0                   # the slopes
+        AA = np.vstack([A, L @ P])
+        yy = np.concatenate([(D @ Wt.T).T.reshape(-1), L @ (Wt @ mean)])
+        Ci = np.linalg.inv(AA.T @ AA)
+        np.testing.assert_allclose(WD[k], (Ci @ AA.T @ yy)[3::4], atol=1e-12)
+        np.testing.assert_allclose(C[k], Ci[3::4, 3::4], atol=1e-12)
+
+
 def test_wear_faster_than_the_fleets_is_found_and_normal_wear_is_not():
     """One engine wears its hpt 3 x the fleet's fastest normal rate: kind 'wear', class hpt, its
     excess rate sized; the 19 engines with normal wear raise no alarm at any flight. Without the

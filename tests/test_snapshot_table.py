@@ -468,3 +468,31 @@ def test_airline_flight_numbers_are_labels(tmp_path, db, plan):
     for e in {r.engine for r in recs}:
         mine = sorted((r for r in recs if r.engine == e), key=lambda r: r.time)
         assert [r.label for r in mine] == [f"flight LH40{k % 2}" for k in range(12)]
+
+
+def test_a_component_drift_from_mid_history_is_found_against_the_fleets_wear(tmp_path, db, monkeypatch):
+    """The seed-11 fleet's ESN015 (healthy; five readings a snapshot) given an HPC losing 0.1 %
+    efficiency and flow a flight from flight 10 (the plant's trims with that health), diagnosed
+    with 16 other engines: its wear line held to the fleet's, the drift is found as an HPC
+    drift by flight 22 (1.3 % lost) with an onset within 4 flights of 10, and nothing before
+    flight 10. With a wear line free per channel it took up most of the drift: found at flight
+    23-27 on three such engines of the 40-engine fleet, never on two."""
+    p = fleet.plan_fleet(40, 30, seed=11)
+    i = p.serial.index("ESN015")
+    keep = [i] + [p.serial.index(f"ESN{k:03d}") for k in range(24, 40)]
+    health = fleet.health_at
+
+    def drifting(plan, e, j):
+        h = health(plan, e, j)
+        if e == i and j >= 10:
+            h[[fleet.H_NAMES.index("hpc_eff"), fleet.H_NAMES.index("hpc_flow")]] -= 1e-3 * (j - 9)
+        return h
+    monkeypatch.setattr(fleet, "health_at", drifting)
+    rows = [r for e in keep for j in range(p.flights) for r in fleet.snapshot_rows(p, e, j, 5)]
+    monkeypatch.undo()
+    got = [d for d in diagnose_fleet(read_snapshot_table(write_table(tmp_path / "t.csv", rows), db), db)[0]
+           if d.engine == "ESN015"]
+    assert not any(d.detected for d in got[:10])
+    found = [d for d in got[10:23] if d.detected]
+    assert found and all(d.cls == "hpc" and d.kind == "drift" and abs(d.onset - 10) <= 4 for d in found), \
+        [(d.flight, d.cls, d.kind, d.onset) for d in got]

@@ -699,6 +699,8 @@ class FleetNorm:
     spread: np.ndarray
     engines: int
     rest: np.ndarray     # (m,) robust spread per deviation channel of what health does not explain
+    rest_median: np.ndarray | None = None   # (m,) its median over the engines
+    trend_spread: tuple | None = None       # (s2, rho2) of :meth:`trend` (wear only)
     common: list = field(default_factory=list)   # the fleet-wide steps left out (:func:`common_steps`)
     away: list = field(default_factory=list)     # the pairs of them that are one excursion (:func:`_fleet_excursions`)
 
@@ -708,6 +710,16 @@ class FleetNorm:
         differences no health parameter explains, such as sensor calibrations)."""
         Sh = S[:, self.columns]
         return Sh @ self.median, (Sh * self.spread ** 2) @ Sh.T + np.diag(self.rest[idx] ** 2)
+
+    def trend(self, S: np.ndarray, idx: np.ndarray, Sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(mean (k,), covariance (k, k)) of a healthy engine's wear line (deviation per flight) in
+        the channels ``idx`` (k,) with signatures S (k, ncol), Sigma the flight-to-flight scatter
+        (m, m): the fleet's median slope per channel, and what ``trend_spread`` (s2, rho2) gives
+        of its engine-to-engine spread without the slopes' own scatter (:func:`_trend_spread`):
+        s2 S_h S_h^T + rho2 Sigma. The ``slope`` of :func:`_fit_changes`."""
+        Sh = S[:, self.columns]
+        s2, rho2 = self.trend_spread
+        return Sh @ self.median + self.rest_median[idx], s2 * Sh @ Sh.T + rho2 * Sigma[np.ix_(idx, idx)]
 
 
 def whitening(Sigma: np.ndarray, idx: np.ndarray) -> np.ndarray:
@@ -765,11 +777,12 @@ def _fleet_norm(series: list[EngineSeries], Sigma: np.ndarray, cfg: "DiagnosisCo
     med, spread = robust(np.array(vals))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)      # a channel no engine of the fleet has
-        left = robust(np.array(rest))[1]
+        left_median, left = robust(np.array(rest))
     left = np.where(np.isfinite(left), left, np.nanmax(left) if np.isfinite(left).any() else 0.0)
     if leverage:
         left = np.maximum(left, cfg.level_floor * np.sqrt(np.diag(Sigma)))
-    return FleetNorm(cols, [series[0].columns[j] for j in cols], med, spread, len(vals), left)
+    return FleetNorm(cols, [series[0].columns[j] for j in cols], med, spread, len(vals), left,
+                     np.where(np.isfinite(left_median), left_median, 0.0))
 
 
 def wear_reference(series: list[EngineSeries], Sigma: np.ndarray,
@@ -784,11 +797,50 @@ def wear_reference(series: list[EngineSeries], Sigma: np.ndarray,
     -0.26 %/flight; truth at most 0.01) and, subtracted from each engine's flights, made its
     flights before it a sensor drift from flight 0. ``steps``: engine -> its steps, when
     already found (:func:`fleet_steps`)."""
+    fits = {}
     def slope(D, t, engine, Wt):
         own = steps[engine] if steps is not None else engine_steps(D, Wt, t, cfg)
         X = np.column_stack([np.ones_like(t), t - t.mean()] + [_shape(t, s, "step") for s in own])
-        return np.linalg.lstsq(X, D, rcond=None)[0][1]
-    return _fleet_norm(series, Sigma, cfg, slope)
+        fits[engine] = (np.linalg.lstsq(X, D, rcond=None)[0][1], float(np.linalg.pinv(X.T @ X)[1, 1]))
+        return fits[engine][0]
+    norm = _fleet_norm(series, Sigma, cfg, slope)
+    if norm is not None:
+        norm.trend_spread = _trend_spread(series, Sigma, norm, fits)
+    return norm
+
+
+def _trend_spread(series: list[EngineSeries], Sigma: np.ndarray, norm: FleetNorm, fits: dict) -> tuple:
+    """(s2, rho2): how much the healthy engines' wear lines differ, without the scatter of their
+    estimates (:meth:`FleetNorm.trend`). ``fits``: engine -> (slope per channel of its usable
+    channels (k,), the slope's variance in units of the flight-to-flight scatter, c). The whitened
+    slopes off the fleet's median, over sqrt(c), have covariance I + (s2 A A^T + rho2 Sigma_w) / c,
+    A = Wt S_h: the median over the engines of their squared norm outside A's span and in it (per
+    degree of freedom, over its chi-square median) gives rho2 / c and then s2, each at its upper
+    two-standard-error bound (what the fleet's data do not rule out). The robust spread of the
+    health rates themselves (``spread``) was 5-20 times the truth on a 40-engine fleet: the rates
+    of the weakly seen components are mostly the estimates' scatter, and an engine's drift from
+    mid-history took it for normal wear."""
+    out, inside, trace, cs = [], [], [], []
+    for es in series:
+        if es.engine not in fits:
+            continue
+        v, c = fits[es.engine]
+        ok, idx, Wt = _usable(es, Sigma)
+        Sh = np.nanmean(es.S[ok][:, idx], axis=0)[:, norm.columns]
+        A = Wt @ Sh
+        y = Wt @ (v - Sh @ norm.median - norm.rest_median[idx]) / np.sqrt(c)
+        Q = np.linalg.qr(A, mode="complete")[0]
+        r = np.linalg.matrix_rank(A)
+        if r < A.shape[0]:
+            out.append(float(np.sum((Q[:, r:].T @ y) ** 2)) / stats.chi2.median(A.shape[0] - r))
+        inside.append(float(np.sum((Q[:, :r].T @ y) ** 2)) / stats.chi2.median(r))
+        trace.append(float(np.sum(A * A)) / r)
+        cs.append(c)
+    n, c = len(cs), float(np.median(cs))
+    k_out = A.shape[0] - r
+    rho = max(0.0, float(np.median(out)) - 1.0) + 2.0 * 1.253 * np.sqrt(2.0 / k_out / len(out)) if out else 0.0
+    s = max(0.0, float(np.median(inside)) - 1.0 - rho) + 2.0 * 1.253 * np.sqrt(2.0 / r / n)
+    return s * c / float(np.median(trace)), rho * c
 
 
 def _largest_step(D, Wt, t, steps=()):
@@ -1037,7 +1089,8 @@ def _shape(t: np.ndarray, tau: float, shape: str) -> np.ndarray:
     return np.maximum(0.0, t - tau + 1.0) if shape == "ramp" else (t >= tau).astype(float)
 
 
-def _fit_changes(D, Wt, S, t, taus, shape, bank, cfg, trend=False, steps=(), spread=None, level=True, ramps=()):
+def _fit_changes(D, Wt, S, t, taus, shape, bank, cfg, trend=False, steps=(), spread=None, level=True, ramps=(),
+                 slope=None):
     """For each change point tau and hypothesis: statistic, estimate, its covariance.
 
     D (n, m) deviations at flights t (n,), Wt (m, m) whitening (Wt @ d ~ N(0, I)), S (m, ncol)
@@ -1053,7 +1106,8 @@ def _fit_changes(D, Wt, S, t, taus, shape, bank, cfg, trend=False, steps=(), spr
     the observed one (common to every hypothesis, which keeps their statistics comparable). A
     pair that is one of its components' curvature (:func:`_curved`) is not fitted.
     ``spread`` (m, m): a covariance the change estimate also has (the fleet's normal wear rates
-    for a wear ramp, :func:`wear_reference`).
+    for a wear ramp, :func:`wear_reference`). ``slope``: (mean (m,), covariance (m, m)) the
+    wear line is held to with ``trend`` (:func:`_held_slope`; default: free per channel).
     Returns a list of (tau, hypothesis index, T, theta, cov, E) with E = g2 |Wt delta|^2 the
     likelihood gain of an unconstrained change at tau (no signature uncertainty): what locates
     the change point, since T saturates near 1/eps^2 per channel for a large change at any tau."""
@@ -1093,9 +1147,15 @@ def _fit_changes(D, Wt, S, t, taus, shape, bank, cfg, trend=False, steps=(), spr
         return out
     delta = (D.T @ G / g2).T                              # (K, m) the observed change (per unit of f), relative
     WD = delta @ Wt.T                                     # whitened
-    E = g2 * np.sum(WD * WD, axis=1)
     m = D.shape[1]
-    Cw = np.eye(m)[None] / g2[:, None, None] + (Wt[None] * ((eps * delta) ** 2 + known)[:, None, :]) @ Wt.T
+    C0 = np.eye(m)[None] / g2[:, None, None]             # its whitened covariance
+    if slope is not None and trend and n >= 4:
+        WD, C0 = _held_slope(D, Wt, X, Xp, F[:, use], WD, g2, slope)
+        delta = np.linalg.solve(Wt, WD.T).T
+        E = np.einsum("ki,ki->k", WD, np.linalg.solve(C0, WD[:, :, None])[:, :, 0])
+    else:
+        E = g2 * np.sum(WD * WD, axis=1)
+    Cw = C0 + (Wt[None] * ((eps * delta) ** 2 + known)[:, None, :]) @ Wt.T
     if spread is not None:
         Cw += Wt @ spread @ Wt.T
     Lw = np.linalg.cholesky(Cw)
@@ -1119,6 +1179,26 @@ def _fit_changes(D, Wt, S, t, taus, shape, bank, cfg, trend=False, steps=(), spr
         curved = _curved(fits, within, bank, S, Wt, Cw[k], delta[k], g2[k] * wnorm2, cfg)
         out += [f for hi, f in fits.items() if hi not in curved]
     return out
+
+
+def _held_slope(D, Wt, X, Xp, F, WD, g2, slope):
+    """The whitened change estimates WD (K, m) and their covariance (K, m, m) with the engine's
+    wear line (column 1 of the nuisances X (n, p), pseudo-inverse Xp) held to the fleet's normal
+    wear, ``slope`` = (mean (m,), covariance (m, m)) of :meth:`FleetNorm.trend`, instead of free
+    per channel: a free slope took up most of a drift that starts mid-history (an HPC losing
+    0.1 %/flight from flight 10: T 13 at flight 22 with a free slope, 148 with none). F (n, K):
+    the change shapes, g2 (K,) their squared norms off the nuisances. The Gaussian conditioning
+    of the change on the slope estimated with it."""
+    mean, cov = slope
+    m = WD.shape[1]
+    c = (Xp @ F)[1]                                        # (K,) the slope's share of each shape
+    p_bd, p_bb = -c / g2, (Xp @ Xp.T)[1, 1] + c ** 2 / g2
+    beta = (Xp @ D)[1][None] @ Wt.T - c[:, None] * WD - Wt @ mean       # (K, m) whitened slope off the fleet's
+    lam, U = np.linalg.eigh(Wt @ cov @ Wt.T)
+    inv = 1.0 / (np.maximum(lam, 0.0)[None] + p_bb[:, None])            # (K, m)
+    WD = WD - p_bd[:, None] * (((beta @ U) * inv) @ U.T)
+    C0 = np.eye(m)[None] / g2[:, None, None] - (p_bd ** 2)[:, None, None] * ((U[None] * inv[:, None, :]) @ U.T)
+    return WD, C0
 
 
 @lru_cache(maxsize=64)
@@ -1163,7 +1243,7 @@ def _curved(fits: dict, within: dict, bank, S, Wt, Cw, delta, scale, cfg) -> set
     return out
 
 
-def _decide(dec, stage, bank, S, t, es, rowsok, n_tests, cfg) -> bool:
+def _decide(dec, stage, bank, S, t, es, rowsok, n_tests, cfg, held=False) -> bool:
     """The change point and shape of one stage with the largest likelihood gain of an
     unconstrained change, then the hypothesis there with the largest T - cost; fill ``dec`` and
     return True if it is detected (Bonferroni p below alpha and big enough). Shape ``wear``: a
@@ -1203,7 +1283,10 @@ def _decide(dec, stage, bank, S, t, es, rowsok, n_tests, cfg) -> bool:
     # model's error: fuel flow "wearing" 0.03 %/flight over a winter and a summer)
     sensor_trend = shape == "wear" and "sensor:" in bank[di].name
     if shape in ("ramp", "wear"):
-        floor = cfg.min_rate if shape == "ramp" or sensor_trend else 0.0
+        # a component's drift off a wear line ``held`` to the fleet's (:func:`_held_slope`) is
+        # judged against the fleet, as its wear is: no min_rate (an engine wearing its fan
+        # 0.05 %/flight from flight 0 fitted a drift from flight 2, held to min_rate it was lost)
+        floor = cfg.min_rate if (shape == "ramp" and not held) or "sensor:" in bank[di].name else 0.0
         big = size >= floor and size * (t[-1] - tau + 1) >= cfg.min_step
     else:
         big = size >= cfg.min_step
@@ -1216,6 +1299,8 @@ def _decide(dec, stage, bank, S, t, es, rowsok, n_tests, cfg) -> bool:
     order = np.argsort(-w)
     dec.detected, dec.cls, dec.statistic = 1, h.name, T
     dec.kind = "drift" if shape == "ramp" or sensor_trend else shape
+    if held and shape == "ramp" and "sensor:" not in h.name and tau <= t[min(2, t.size - 1)]:
+        dec.kind, tau = "wear", t[0]     # the first ramp a held wear line leaves: wear from the first flight
     if shape == "step" and effs and min(effs) > 0:     # every efficiency up: maintenance, not a fault
         dec.detected, dec.kind, dec.status = 0, "recovery", "recovery"
     dec.onset = int(tau)
@@ -1377,15 +1462,16 @@ def _nuisance(known: list, before: float = np.inf) -> dict:
 REVISE_FLIGHTS = 2
 
 
-def _stages(D, Wt, S, t, bank, cfg, wear, known, level=None):
+def _stages(D, Wt, S, t, bank, cfg, wear, known, level=None, slope=None):
     """The fits of the stages of a flight's tests, in the order they are decided (each a list of
     (shape, fits of :func:`_fit_changes`)): deviations D (n, m) at flight numbers t (n,),
     whitening Wt, the signatures S (m, ncol) (they hardly move with the operating point: their
     mean over the flights), the fleet's normal ``wear`` and ``level`` in these channels
     ((mean (m,), covariance (m, m)) of :meth:`FleetNorm.at`) or None, ``known`` the changes
     found, in the order found (:func:`_known`), and the engine's steps of a fleet-wide change
-    (shape ``fleet``: a nuisance of every test, never a decision)."""
-    fit = partial(_fit_changes, D, Wt, S, t, bank=bank, cfg=cfg, trend=cfg.wear, **_nuisance(known))
+    (shape ``fleet``: a nuisance of every test, never a decision); ``slope``: the fleet's wear
+    line the engine's is held to (:meth:`FleetNorm.trend`), or None (free)."""
+    fit = partial(_fit_changes, D, Wt, S, t, bank=bank, cfg=cfg, trend=cfg.wear, slope=slope, **_nuisance(known))
     found = [k for k in known if k.shape != "fleet"]
     if found:   # a new change after the changes found, measured from them; else the last one again
         last, new = found[-1], t[t > found[-1].onset][-cfg.window:]
@@ -1799,14 +1885,18 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
             measured from ``known``; the number of tests (0: none)."""
             u = np.ones(t.size, bool) if use is None else use
             wide = bank + (sensor_pairs(bank) if cfg.pairs else [])      # (appended: bank's indices hold)
+            # the engine's wear line held to the fleet's (:func:`_held_slope`) until it is found to wear faster
+            slope = (wear.trend(Sbar_all, idx, Sigma) if wear and wear.trend_spread
+                     and not any(f.kind == "wear" for f in mine) else None)
             stages = _stages(D[u], Wt, Sbar_all, t[u], wide, cfg, wear and wear.at(Sbar_all, idx), known,
-                             level.at(Sbar_all, idx) if level and first == 0 else None)
+                             level.at(Sbar_all, idx) if level and first == 0 else None, slope)
             every = [f for stage in stages for _, fits in stage for f in fits if f[1] < len(bank)]
             if every:
                 p_all = stats.chi2.sf([f[2] for f in every], [len(bank[f[1]].columns) for f in every]) * len(every)
                 dec.p_value = min(float(p_all.min()), 1.0)
                 for stage in stages:
-                    if stage and _decide(dec, stage, wide, Sbar_all, t[u], es, rowsok[u], len(every), cfg):
+                    if stage and _decide(dec, stage, wide, Sbar_all, t[u], es, rowsok[u], len(every), cfg,
+                                         slope is not None):
                         break
             return len(every)
         n_tests = decide(dec, known)
