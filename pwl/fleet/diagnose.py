@@ -1299,8 +1299,11 @@ def _decide(dec, stage, bank, S, t, es, rowsok, n_tests, cfg, held=False) -> boo
     order = np.argsort(-w)
     dec.detected, dec.cls, dec.statistic = 1, h.name, T
     dec.kind = "drift" if shape == "ramp" or sensor_trend else shape
-    if held and shape == "ramp" and "sensor:" not in h.name and tau <= t[min(2, t.size - 1)]:
-        dec.kind, tau = "wear", t[0]     # the first ramp a held wear line leaves: wear from the first flight
+    if held and shape == "ramp" and tau <= t[min(2, t.size - 1)]:
+        # the first ramp a held wear line leaves room for: a trend from the first flight (a
+        # component's is wear; a sensor's a drift, as the wear test reads them)
+        tau = t[0]
+        dec.kind = "drift" if "sensor:" in h.name else "wear"
     if shape == "step" and effs and min(effs) > 0:     # every efficiency up: maintenance, not a fault
         dec.detected, dec.kind, dec.status = 0, "recovery", "recovery"
     dec.onset = int(tau)
