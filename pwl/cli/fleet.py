@@ -271,6 +271,10 @@ def run_diagnose(args) -> int:
     if wear is not None:
         print(f"normal wear of the fleet (median over {wear.engines} engines +- robust spread, % per flight): " +
               ", ".join(f"{n} {100 * m:+.4f} +- {100 * s:.4f}" for n, m, s in zip(wear.names, wear.median, wear.spread)))
+        if wear.trend_spread:
+            print(f"an engine's wear line is held to the fleet's: engine-to-engine spread without the rates' own "
+                  f"scatter at most {100 * np.sqrt(wear.trend_spread[0]):.4f} % per flight per health parameter, "
+                  f"{np.sqrt(wear.trend_spread[1]):.3g} x the flight-to-flight scatter per flight beyond health")
     elif cfg.wear:
         print(f"too few engines for the fleet's normal wear and level (at least {cfg.wear_engines} with "
               f"{cfg.wear_flights} complete flights each): wear is reported from {100 * cfg.min_rate:g} % per "

@@ -1109,8 +1109,10 @@ def _fit_changes(D, Wt, S, t, taus, shape, bank, cfg, trend=False, steps=(), spr
     for a wear ramp, :func:`wear_reference`). ``slope``: (mean (m,), covariance (m, m)) the
     wear line is held to with ``trend`` (:func:`_held_slope`; default: free per channel).
     Returns a list of (tau, hypothesis index, T, theta, cov, E) with E = g2 |Wt delta|^2 the
-    likelihood gain of an unconstrained change at tau (no signature uncertainty): what locates
-    the change point, since T saturates near 1/eps^2 per channel for a large change at any tau."""
+    likelihood gain of an unconstrained change at tau (no signature uncertainty; with a held
+    line or ``spread``, Wt delta's norm in the metric of its covariance without that uncertainty):
+    what locates the change point, since T saturates near 1/eps^2 per channel for a large change
+    at any tau."""
     out = []
     n = t.size
     groups = []
@@ -1149,15 +1151,15 @@ def _fit_changes(D, Wt, S, t, taus, shape, bank, cfg, trend=False, steps=(), spr
     WD = delta @ Wt.T                                     # whitened
     m = D.shape[1]
     C0 = np.eye(m)[None] / g2[:, None, None]             # its whitened covariance
-    if slope is not None and trend and n >= 4:
+    held = slope is not None and trend and n >= 4
+    if held:
         WD, C0 = _held_slope(D, Wt, X, Xp, F[:, use], WD, g2, slope)
         delta = np.linalg.solve(Wt, WD.T).T
-        E = np.einsum("ki,ki->k", WD, np.linalg.solve(C0, WD[:, :, None])[:, :, 0])
-    else:
-        E = g2 * np.sum(WD * WD, axis=1)
-    Cw = C0 + (Wt[None] * ((eps * delta) ** 2 + known)[:, None, :]) @ Wt.T
     if spread is not None:
-        Cw += Wt @ spread @ Wt.T
+        C0 = C0 + Wt @ spread @ Wt.T
+    E = (np.einsum("ki,ki->k", WD, np.linalg.solve(C0, WD[:, :, None])[:, :, 0]) if held or spread is not None
+         else g2 * np.sum(WD * WD, axis=1))
+    Cw = C0 + (Wt[None] * ((eps * delta) ** 2 + known)[:, None, :]) @ Wt.T
     Lw = np.linalg.cholesky(Cw)
     v = np.linalg.solve(Lw, WD[:, :, None])[:, :, 0]      # whitened change estimate, N(0, I) if none
     Sw = np.linalg.solve(Lw, np.broadcast_to(Wt @ S, (taus.size,) + S.shape))
@@ -1267,7 +1269,7 @@ def _decide(dec, stage, bank, S, t, es, rowsok, n_tests, cfg, held=False) -> boo
             continue
         _, hi, T, th, cov, _ = max(here, key=lambda f: f[2] - bank[f[1]].cost(cfg))
         effs = [v for c, v in zip(bank[hi].columns, th) if es.columns[c].endswith("_eff")]
-        if not (shape == "ramp" and effs and min(effs) > 0):
+        if not (shape in ("ramp", "wear") and effs and min(effs) > 0):
             break
     else:
         return False
@@ -1300,8 +1302,8 @@ def _decide(dec, stage, bank, S, t, es, rowsok, n_tests, cfg, held=False) -> boo
     dec.detected, dec.cls, dec.statistic = 1, h.name, T
     dec.kind = "drift" if shape == "ramp" or sensor_trend else shape
     if held and shape == "ramp" and tau <= t[min(2, t.size - 1)]:
-        # the first ramp a held wear line leaves room for: a trend from the first flight (a
-        # component's is wear; a sensor's a drift, as the wear test reads them)
+        # the first ramp a held wear line leaves room for is a trend from the first flight (a
+        # component's: wear; a fan wearing 0.05 %/flight from flight 0 read a drift from flight 2)
         tau = t[0]
         dec.kind = "drift" if "sensor:" in h.name else "wear"
     if shape == "step" and effs and min(effs) > 0:     # every efficiency up: maintenance, not a fault
@@ -1492,7 +1494,7 @@ def _stages(D, Wt, S, t, bank, cfg, wear, known, level=None, slope=None):
             if other and again and max(f[5] for f in other) > max(f[5] for f in again):
                 stages.insert(1, [("step", other)])
         return stages
-    stages = _first_stages(fit, D, Wt, S, t, bank, cfg, wear, _nuisance(known)["steps"])
+    stages = _first_stages(fit, D, Wt, S, t, bank, cfg, wear, _nuisance(known)["steps"], slope)
     if level is not None:
         # 3. nothing changed since the first flight: is the baseline itself off the fleet's?
         stages.append([("level", _level_fits(D, Wt, S, t, bank, cfg, level))])
@@ -1541,12 +1543,20 @@ def _calibrated(D, Sk, offsets, base: int) -> np.ndarray:
     return D
 
 
-def _first_stages(fit, D, Wt, S, t, bank, cfg, wear, fleet):
+def _first_stages(fit, D, Wt, S, t, bank, cfg, wear, fleet, slope=None):
     """Stages 1 and 2 of :func:`_stages` on an engine without a fault found (``fleet``: the
-    flight numbers of its steps of a fleet-wide change, nuisances of ``fit`` too)."""
-    # 1. a step or a drift that starts after the first flights, off the engine's wear line
+    flight numbers of its steps of a fleet-wide change, nuisances of ``fit`` too; ``slope``: the
+    fleet's wear line its own is held to, or None)."""
+    # 1. a step or a drift that starts after the first flights, off the engine's wear line; held
+    #    to the fleet's, with wear faster than the fleet's among them (a ramp from the first
+    #    flight, its estimate carrying the fleet's spread of wear lines): else an engine wearing
+    #    every component faster than its fleet read a sensor step at flight 1 (the change the
+    #    held line left room for that fitted its trend best)
     taus = t[1:][-cfg.window:]
     stage1 = [("step", fit(taus, "step")), ("ramp", fit(taus, "ramp"))]
+    if slope is not None and cfg.wear:
+        stage1.append(("wear", _component_wear(partial(_fit_changes, D - np.outer(t, slope[0]), Wt, S, t, cfg=cfg,
+                                                       spread=slope[1], steps=fleet), bank, t[:1], "ramp")))
     # 2. with the wear line as nuisance, wear faster than normal is tested on its own: the
     #    engine's whole-history rate (a ramp from the first flight, level only), against the
     #    fleet's normal wear when there is a fleet
