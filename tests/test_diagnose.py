@@ -961,3 +961,38 @@ def test_a_long_history_looks_for_a_new_change_in_its_latest_flights():
     assert not any(r.detected for r in short[:20])
     assert all(r.detected and r.cls == "hpt" and r.onset == 20 for r in short[20:60])
     assert all(r.detected and r.cls == "fan" and r.onset == 60 and "hpt@20" in r.earlier for r in short[60:])
+
+
+def test_a_sensor_scattering_more_since_a_flight_is_erratic_and_plain_noise_is_not():
+    """_erratic on deviations of two regimes (channels A@0, A@1 of sensor A and four others):
+    A six times as noisy from flight 12 of 30 is found, onset within 2 of 12, its scatter ratio
+    within a factor 2 of 6. Not found: a bias of 50 sigma on flights 12-19 only (on, then off),
+    and plain noise with one 10-sigma outlier, whose alarms over 300 engines at alpha = 0.02 stay
+    within the binomial bound of 0.02 per engine."""
+    from dataclasses import replace
+
+    from pwl.fleet.diagnose import Decision, _erratic
+    rng = np.random.default_rng(2)
+    S, sd = synthetic_signatures(), 1e-3
+    Sigma, idx = np.eye(6) * sd ** 2, np.arange(6)
+    es = replace(series(np.zeros((30, 6)), S), channels=["A@0", "B@0", "C@0", "A@1", "c4@0", "c5@0"])
+    t = np.arange(30.0)
+
+    def judged(D, cfg=DiagnosisConfig()):
+        dec = Decision("E", 29, "f29", "f29", "ok")
+        return dec if _erratic(dec, es, D, idx, t, [], Sigma, cfg) else None
+
+    D = rng.normal(0, sd, (30, 6))
+    D[12:, [0, 3]] += rng.normal(0, sd * np.sqrt(35.0), (18, 2))
+    dec = judged(D)
+    assert dec and dec.detected and dec.cls == "sensor:A" and dec.kind == "erratic" and abs(dec.onset - 12) <= 2
+    assert 3.0 < float(dec.detail.split("=")[1]) < 12.0
+    D = rng.normal(0, sd, (30, 6))
+    D[12:20, [0, 3]] += 50 * sd
+    assert judged(D) is None
+    alarms = 0
+    for e in range(300):
+        D = rng.normal(0, sd, (30, 6))
+        D[rng.integers(5, 30), rng.integers(0, 6)] += 10 * sd
+        alarms += judged(D, DiagnosisConfig(alpha=0.02)) is not None
+    assert alarms <= 0.02 * 300 + 3 * np.sqrt(0.02 * 300)

@@ -496,3 +496,23 @@ def test_a_component_drift_from_mid_history_is_found_against_the_fleets_wear(tmp
     found = [d for d in got[10:23] if d.detected]
     assert found and all(d.cls == "hpc" and d.kind == "drift" and abs(d.onset - 10) <= 4 for d in found), \
         [(d.flight, d.cls, d.kind, d.onset) for d in got]
+
+
+def test_a_sensor_noisier_since_a_flight_is_erratic(tmp_path, db):
+    """The seed-11 fleet's ESN015 (healthy; five readings a snapshot) with T30 six times as noisy
+    from flight 15 (a loose connector), diagnosed with 11 other engines: T30 is named on at least
+    8 of flights 20-29, ``erratic`` (onset within 2 of 15) on at least 4 of them; no other engine
+    is erratic. Before, the noisy readings were steps or intermittent biases on a few flights,
+    ``cleared`` or nothing on most."""
+    p = fleet.plan_fleet(40, 30, seed=11)
+    keep = [p.serial.index(e) for e in ["ESN015"] + [f"ESN{k:03d}" for k in range(24, 35)]]
+    rows = [r for i in keep for j in range(p.flights) for r in fleet.snapshot_rows(p, i, j, 5)]
+    rng = np.random.default_rng(7)
+    for r in rows:
+        if r["engine"] == "ESN015" and r["flight"] >= 15:
+            r["T30"] *= 1.0 + rng.normal(0.0, 0.0075 / np.sqrt(5) * np.sqrt(35.0))
+    got = diagnose_fleet(read_snapshot_table(write_table(tmp_path / "t.csv", rows), db), db)[0]
+    late = [d for d in got if d.engine == "ESN015" and d.flight >= 20]
+    assert sum(d.detected and d.cls == "sensor:T30" for d in late) >= 8, [(d.flight, d.cls, d.kind) for d in late]
+    assert sum(d.kind == "erratic" and abs(d.onset - 15) <= 2 for d in late) >= 4, [(d.flight, d.cls, d.kind) for d in late]
+    assert not any(d.kind == "erratic" for d in got if d.engine != "ESN015")

@@ -289,6 +289,9 @@ def run_diagnose(args) -> int:
             "level": " against the fleet's median (off its fleet from its first flight)"}.get(r.kind, "")
         if r.kind == "intermittent":
             what = f"intermittent (its bias came and went; when on {readable_detail(r.detail, units)} from its baseline)"
+        elif r.kind == "erratic":
+            what = (f"erratic (its readings scatter {r.detail.partition('=')[2]} times as much from flight to flight "
+                    "as before: a loose connector, a failing sensor?)")
         after = f" (after {', '.join(r.earlier.split())}, still present)" if r.earlier else ""
         print(f"  {e}: {r.cls} from flight {r.onset}, {what}, confidence {r.confidence:.2f}{after}")
     by_engine: dict = {}

@@ -38,7 +38,8 @@ when nothing changed.
   when the components' wear does not fit it better (:func:`_component_wear`).
 - **Sensor episodes**: a sensor bias that goes away is ``cleared`` (not a fault), one that comes
   back is ``intermittent`` (:func:`_episodes`), judged flight by flight against the sensor's
-  reading before its first step.
+  reading before its first step; one whose readings scatter more since some flight is
+  ``erratic`` (:func:`_erratic`).
 - **Recovery**: a component step whose efficiencies all rise (a compressor wash, a repair) is
   not a fault: status and kind ``recovery``, ``detected`` 0. From its onset on the engine is
   diagnosed on a new baseline (the flights before it are left out), so that a later fault is
@@ -1988,6 +1989,12 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
                     dec, state.earlier = state, _earlier(state, mine)
                 else:
                     dec.earlier = f"{state.cls}@{state.onset:g}"
+        # (on every flight of the baseline with these channels: the flights left out as off for a
+        # flight or in transition are what an erratic sensor makes)
+        every = first + np.flatnonzero(np.all(present[first: k + 1][:, idx], axis=1))
+        if not dec.detected and dec.status in ("ok", "cleared") and \
+                _erratic(dec, es, es.D[every][:, idx], idx, number[every], [c.onset for c in known], Sigma, cfg):
+            dec.earlier = _earlier(dec, mine)
         rows.append(_standing(dec, mine) if dec.status == "cleared" and dec.earlier and dec.onset < dec.flight else dec)
     if own[0] > OWN_WARN:
         warnings.warn(PwlWarning(f"engine {es.engine}: judged against its own flight-to-flight scatter, "
@@ -2237,6 +2244,60 @@ def _episodes(dec: Decision, found: list, seen: list, es: EngineSeries, rowsok, 
     dec.detail = " ".join(f"{k}={v}" for k, v in fit.items())
     dec.magnitude, dec.magnitude_std, dec.bias = _sensor_size(es, rowsok, col, size, std)
     return ta[ison] if dec.kind == "cleared" else none
+
+
+#: a sensor whose flight-to-flight scatter grew to at least this many times (variance, medians)
+#: what it was before is ``erratic`` (:func:`_erratic`), with at least ERRATIC_BEFORE successive
+#: differences before and ERRATIC_AFTER after its onset
+ERRATIC_RATIO = 4.0
+ERRATIC_BEFORE = 6
+ERRATIC_AFTER = 4
+#: the quantile of a difference's null distribution whose exceedances are counted (:func:`_erratic`)
+ERRATIC_QUANTILE = 0.9
+
+
+def _erratic(dec: Decision, es: EngineSeries, D: np.ndarray, idx: np.ndarray, t: np.ndarray, onsets,
+             Sigma: np.ndarray, cfg: DiagnosisConfig) -> bool:
+    """A sensor whose readings scatter more from flight to flight since some flight (a loose
+    connector, a failing thermocouple): ``dec`` (no fault found, or that sensor's bias read
+    ``cleared``: a reading far off on one flight and back on the next) becomes that sensor's
+    ``erratic`` fault, onset where it began, its detail the ratio of standard deviations; True
+    then. Per sensor (its L channels of ``idx``, every regime), each successive difference of the
+    deviations D (n, k) at flight numbers t, squared over twice the fleet's scatter Sigma and
+    summed, is chi-square(L) when nothing changed, scaled by the engine's own before the candidate
+    onset if that is larger (medians); the differences at ``onsets`` (changes confirmed) are left
+    out. After each candidate onset, the count above the ERRATIC_QUANTILE quantile is binomial: its
+    tail probability, Bonferroni over the sensors and onsets, below ``alpha``, and the median
+    after it at least ERRATIC_RATIO times the null's. Counting, not summing: a bias on for a while
+    and off again (two large differences) is no scatter. A sensor six times as noisy from flight
+    15 (T30, five engines of a 40-engine snapshot table) read a T30 step, drift or intermittent
+    bias on a few later flights, ``cleared`` or nothing on most."""
+    if t.size < ERRATIC_BEFORE + ERRATIC_AFTER + 1:
+        return False
+    names = [es.channels[i].split("@")[0] for i in idx]
+    sq = np.diff(D, axis=0) ** 2 / (2.0 * np.diag(Sigma)[idx])
+    keep = ~np.isin(t[1:], list(onsets))
+    tests = []
+    for sensor in dict.fromkeys(names):
+        cols = [j for j, nm in enumerate(names) if nm == sensor]
+        ok = keep & np.all(np.isfinite(sq[:, cols]), axis=1)
+        x, at = sq[ok][:, cols].sum(axis=1), t[1:][ok]
+        mid, cut = stats.chi2.median(len(cols)), stats.chi2.ppf(ERRATIC_QUANTILE, len(cols))
+        for j in range(ERRATIC_BEFORE, x.size - ERRATIC_AFTER + 1):
+            scale = max(1.0, float(np.median(x[:j])) / mid)
+            after = x[j:]
+            k = int(np.sum(after > scale * cut))
+            p = float(stats.binom.sf(k - 1, after.size, 1.0 - ERRATIC_QUANTILE))
+            tests.append((p, float(np.median(after)) / (scale * mid), sensor, at[j]))
+    if not tests:
+        return False
+    p, ratio, sensor, onset = min(tests)
+    if p * len(tests) < cfg.alpha and ratio >= ERRATIC_RATIO and (dec.status == "ok" or dec.cls == f"sensor:{sensor}"):
+        dec.status = "ok"
+        dec.detected, dec.cls, dec.kind, dec.onset = 1, f"sensor:{sensor}", "erratic", int(onset)
+        dec.p_value, dec.statistic, dec.detail = min(1.0, p * len(tests)), ratio, f"scatter_ratio={np.sqrt(ratio):.3g}"
+        return True
+    return False
 
 
 def recoveries(decisions: list[Decision]) -> list[Decision]:

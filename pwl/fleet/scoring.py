@@ -6,7 +6,7 @@ Inputs are two CSV files, so any diagnostic method can be scored:
   number in the numbering of the truth's ``onset``: the logs' ``flight_index``, else the 0-based
   position in time order), ``detected`` (1/0, true/false or yes/no, any case), ``class`` (the
   assigned class; ignored when not detected); optional
-  ``kind`` (step, drift, wear, level, stuck, intermittent; cleared and recovery are not detected), ``magnitude`` (efficiency change for components, relative bias for the
+  ``kind`` (step, drift, wear, level, stuck, intermittent, erratic; cleared and recovery are not detected), ``magnitude`` (efficiency change for components, relative bias for the
   fuel-flow measurement) and ``bias`` (sensor units, for sensor faults);
 - the truth, one row per engine: ``engine``, ``class`` (``none`` for a healthy engine), ``onset``
   (first faulty flight, -1 for none), ``magnitude``, ``unit`` (``fraction`` or ``sigma``), ``bias``

@@ -147,7 +147,9 @@ class EngineTrend:
             what = "rate" if rate else ("bias when on" if d.kind == "intermittent" else "size")
             size = (f"{what} {100 * d.magnitude:+.2f} "
                     f"+- {100 * d.magnitude_std:.2f} %{'/flight' if rate else ''}")
-            if np.isfinite(d.bias):
+            if d.kind == "erratic":
+                size = f"scatter {d.detail.partition('=')[2]} x its own before"
+            elif np.isfinite(d.bias):
                 size += f", bias {d.bias:+.4g} (sensor units)"
             lines.append(f"FAULT: {d.cls} ({_kind(d)} since flight {d.onset}), {size}, confidence "
                          f"{d.confidence:.2f} (next: {d.runner_up}); {self.detail(d)}")
