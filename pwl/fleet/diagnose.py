@@ -2264,9 +2264,9 @@ def _erratic(dec: Decision, es: EngineSeries, D: np.ndarray, idx: np.ndarray, t:
     ``erratic`` fault, onset where it began, its detail the ratio of standard deviations; True
     then. Per sensor (its L channels of ``idx``, every regime), each successive difference of the
     deviations D (n, k) at flight numbers t, squared over twice the fleet's scatter Sigma and
-    summed, is chi-square(L) when nothing changed, scaled by the engine's own before the candidate
-    onset if that is larger (medians); the differences at ``onsets`` (changes confirmed) are left
-    out. After each candidate onset, the count above the ERRATIC_QUANTILE quantile is binomial: its
+    summed, is chi-square(L) when nothing changed, scaled by the sensor's own before the candidate
+    onset or the engine's other sensors' since, if larger (medians); the differences at
+    ``onsets`` (changes confirmed) are left out. After each candidate onset, the count above the ERRATIC_QUANTILE quantile is binomial: its
     tail probability, Bonferroni over the sensors and onsets, below ``alpha``, and the median
     after it at least ERRATIC_RATIO times the null's. Counting, not summing: a bias on for a while
     and off again (two large differences) is no scatter. A sensor six times as noisy from flight
@@ -2275,20 +2275,26 @@ def _erratic(dec: Decision, es: EngineSeries, D: np.ndarray, idx: np.ndarray, t:
     if t.size < ERRATIC_BEFORE + ERRATIC_AFTER + 1:
         return False
     names = [es.channels[i].split("@")[0] for i in idx]
+    sensors = list(dict.fromkeys(names))
     sq = np.diff(D, axis=0) ** 2 / (2.0 * np.diag(Sigma)[idx])
-    keep = ~np.isin(t[1:], list(onsets))
+    keep = ~np.isin(t[1:], list(onsets)) & np.all(np.isfinite(sq), axis=1)
+    at = t[1:][keep]
+    # each sensor's differences in units of its null's median, and its null's ERRATIC_QUANTILE point
+    y = {s: sq[keep][:, [j for j, nm in enumerate(names) if nm == s]].sum(axis=1) for s in sensors}
+    cut = {s: stats.chi2.ppf(ERRATIC_QUANTILE, names.count(s)) / stats.chi2.median(names.count(s)) for s in sensors}
+    y = {s: v / stats.chi2.median(names.count(s)) for s, v in y.items()}
     tests = []
-    for sensor in dict.fromkeys(names):
-        cols = [j for j, nm in enumerate(names) if nm == sensor]
-        ok = keep & np.all(np.isfinite(sq[:, cols]), axis=1)
-        x, at = sq[ok][:, cols].sum(axis=1), t[1:][ok]
-        mid, cut = stats.chi2.median(len(cols)), stats.chi2.ppf(ERRATIC_QUANTILE, len(cols))
-        for j in range(ERRATIC_BEFORE, x.size - ERRATIC_AFTER + 1):
-            scale = max(1.0, float(np.median(x[:j])) / mid)
-            after = x[j:]
-            k = int(np.sum(after > scale * cut))
-            p = float(stats.binom.sf(k - 1, after.size, 1.0 - ERRATIC_QUANTILE))
-            tests.append((p, float(np.median(after)) / (scale * mid), sensor, at[j]))
+    for j in range(ERRATIC_BEFORE, at.size - ERRATIC_AFTER + 1):
+        level = {s: float(np.median(v[j:])) for s, v in y.items()}
+        for s in sensors:
+            # against the fleet, its own before, and the engine's other sensors since (an engine
+            # noisier than its fleet throughout, its T48 quieter on its first flights by chance,
+            # read an erratic T48)
+            scale = max([1.0, float(np.median(y[s][:j]))] + ([float(np.median([level[o] for o in sensors if o != s]))]
+                                                               if len(sensors) > 1 else []))
+            k = int(np.sum(y[s][j:] > scale * cut[s]))
+            p = float(stats.binom.sf(k - 1, at.size - j, 1.0 - ERRATIC_QUANTILE))
+            tests.append((p, level[s] / scale, s, at[j]))
     if not tests:
         return False
     p, ratio, sensor, onset = min(tests)
