@@ -2266,9 +2266,9 @@ def _erratic(dec: Decision, es: EngineSeries, D: np.ndarray, idx: np.ndarray, t:
     deviations D (n, k) at flight numbers t, squared over twice the fleet's scatter Sigma and
     summed, is chi-square(L) when nothing changed, scaled by the sensor's own before the candidate
     onset or the engine's other sensors' since, if larger (medians); the differences at
-    ``onsets`` (changes confirmed) are left out. After each candidate onset, the count above the ERRATIC_QUANTILE quantile is binomial: its
-    tail probability, Bonferroni over the sensors and onsets, below ``alpha``, and the median
-    after it at least ERRATIC_RATIO times the null's. Counting, not summing: a bias on for a while
+    ``onsets`` (changes confirmed) are left out. After each candidate onset, the count above the
+    ERRATIC_QUANTILE quantile is binomial: its tail probability, Bonferroni over the sensors and
+    onsets, below ``alpha``, and the median after it at least ERRATIC_RATIO times the null's. Counting, not summing: a bias on for a while
     and off again (two large differences) is no scatter. A sensor six times as noisy from flight
     15 (T30, five engines of a 40-engine snapshot table) read a T30 step, drift or intermittent
     bias on a few later flights, ``cleared`` or nothing on most."""
