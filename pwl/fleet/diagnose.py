@@ -1900,9 +1900,14 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
             u = np.ones(t.size, bool) if use is None else use
             wide = bank + (sensor_pairs(bank) if cfg.pairs else [])      # (appended: bank's indices hold)
             # the engine's wear line held to the fleet's (:func:`_held_slope`) until it is found to wear faster
-            slope = (wear.trend(Sbar_all, idx, Sigma) if wear and wear.trend_spread
-                     and not any(f.kind == "wear" for f in mine) else None)
-            stages = _stages(D[u], Wt, Sbar_all, t[u], wide, cfg, wear and wear.at(Sbar_all, idx), known,
+            # found to wear faster, its line is free again, and its wear is tested against the
+            # fleet's spread of wear lines (the spread of the rates was 5-20 times it: a slow wear
+            # found at flight 10 was lost at 12-24)
+            trend = wear.trend(Sbar_all, idx, Sigma) if wear and wear.trend_spread else None
+            freed = any(f.kind == "wear" for f in mine)
+            slope = None if freed else trend
+            normal = (trend if freed and trend is not None else wear.at(Sbar_all, idx)) if wear else None
+            stages = _stages(D[u], Wt, Sbar_all, t[u], wide, cfg, normal, known,
                              level.at(Sbar_all, idx) if level and first == 0 else None, slope)
             every = [f for stage in stages for _, fits in stage for f in fits if f[1] < len(bank)]
             if every:
