@@ -103,7 +103,8 @@ class DiagnosisConfig:
     square of its change over the channels (:func:`_curved`); pairs: also test
     changes of two causes (two components, a component and a sensor), at an extra cost ``pair_cost`` (a combined fault is rarer than a single
     one, and must explain more than a large single fault's nonlinearity); wear: the engine's own
-    wear line is a nuisance of the step tests (normal wear is not a fault); rollout: a change of
+    wear line is a nuisance of the step tests (normal wear is not a fault), held to the fleet's
+    when the fleet gives a wear reference (:func:`_held_slope`); rollout: a change of
     the whole fleet may be rolled out over this many consecutive flights (:func:`common_steps`);
     level_floor: the engine-to-engine spread of what health does not explain in a baseline level is
     taken as at least this many times each channel's flight-to-flight scatter (:func:`level_reference`);
@@ -1473,7 +1474,8 @@ def _stages(D, Wt, S, t, bank, cfg, wear, known, level=None, slope=None):
     (shape, fits of :func:`_fit_changes`)): deviations D (n, m) at flight numbers t (n,),
     whitening Wt, the signatures S (m, ncol) (they hardly move with the operating point: their
     mean over the flights), the fleet's normal ``wear`` and ``level`` in these channels
-    ((mean (m,), covariance (m, m)) of :meth:`FleetNorm.at`) or None, ``known`` the changes
+    ((mean (m,), covariance (m, m)) of :meth:`FleetNorm.at`, or for the wear of an engine found to
+    wear faster :meth:`FleetNorm.trend`) or None, ``known`` the changes
     found, in the order found (:func:`_known`), and the engine's steps of a fleet-wide change
     (shape ``fleet``: a nuisance of every test, never a decision); ``slope``: the fleet's wear
     line the engine's is held to (:meth:`FleetNorm.trend`), or None (free)."""
@@ -1899,10 +1901,10 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
             measured from ``known``; the number of tests (0: none)."""
             u = np.ones(t.size, bool) if use is None else use
             wide = bank + (sensor_pairs(bank) if cfg.pairs else [])      # (appended: bank's indices hold)
-            # the engine's wear line held to the fleet's (:func:`_held_slope`) until it is found to wear faster
-            # found to wear faster, its line is free again, and its wear is tested against the
-            # fleet's spread of wear lines (the spread of the rates was 5-20 times it: a slow wear
-            # found at flight 10 was lost at 12-24)
+            # the engine's wear line held to the fleet's (:func:`_held_slope`) until it is found to
+            # wear faster; then free again, and its wear tested against the fleet's spread of wear
+            # lines (the spread of the rates was 5-20 times it: a slow wear found at flight 10 was
+            # lost at 12-24)
             trend = wear.trend(Sbar_all, idx, Sigma) if wear and wear.trend_spread else None
             freed = any(f.kind == "wear" for f in mine)
             slope = None if freed else trend
@@ -1996,9 +1998,9 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
                     dec.earlier = f"{state.cls}@{state.onset:g}"
         # (on every flight of the baseline with these channels: the flights left out as off for a
         # flight or in transition are what an erratic sensor makes)
-        every = first + np.flatnonzero(np.all(present[first: k + 1][:, idx], axis=1))
+        flown = first + np.flatnonzero(np.all(present[first: k + 1][:, idx], axis=1))
         if not dec.detected and dec.status in ("ok", "cleared") and \
-                _erratic(dec, es, es.D[every][:, idx], idx, number[every], [c.onset for c in known], Sigma, cfg):
+                _erratic(dec, es, es.D[flown][:, idx], idx, number[flown], [c.onset for c in known], Sigma, cfg):
             dec.earlier = _earlier(dec, mine)
         rows.append(_standing(dec, mine) if dec.status == "cleared" and dec.earlier and dec.onset < dec.flight else dec)
     if own[0] > OWN_WARN:
@@ -2273,10 +2275,11 @@ def _erratic(dec: Decision, es: EngineSeries, D: np.ndarray, idx: np.ndarray, t:
     onset or the engine's other sensors' since, if larger (medians); the differences at
     ``onsets`` (changes confirmed) are left out. After each candidate onset, the count above the
     ERRATIC_QUANTILE quantile is binomial: its tail probability, Bonferroni over the sensors and
-    onsets, below ``alpha``, and the median after it at least ERRATIC_RATIO times the null's. Counting, not summing: a bias on for a while
-    and off again (two large differences) is no scatter. A sensor six times as noisy from flight
-    15 (T30, five engines of a 40-engine snapshot table) read a T30 step, drift or intermittent
-    bias on a few later flights, ``cleared`` or nothing on most."""
+    onsets, below ``alpha``, and the median after it at least ERRATIC_RATIO times the null's.
+    Counting, not summing: a bias on for a while and off again (two large differences) is no
+    scatter. A sensor six times as noisy from flight 15 (T30, five engines of a 40-engine
+    snapshot table) read a T30 step, drift or intermittent bias on a few later flights,
+    ``cleared`` or nothing on most."""
     if t.size < ERRATIC_BEFORE + ERRATIC_AFTER + 1:
         return False
     names = [es.channels[i].split("@")[0] for i in idx]
