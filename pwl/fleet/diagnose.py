@@ -1555,11 +1555,15 @@ def _first_stages(fit, D, Wt, S, t, bank, cfg, wear, fleet, slope=None):
     #    flight, its estimate carrying the fleet's spread of wear lines): else an engine wearing
     #    every component faster than its fleet read a sensor step at flight 1 (the change the
     #    held line left room for that fitted its trend best)
+    def faster(normal):
+        """The fits of wear faster than ``normal`` (mean, covariance): a ramp from the first flight."""
+        mean, spread = normal
+        return ("wear", _component_wear(partial(_fit_changes, D - np.outer(t, mean), Wt, S, t, cfg=cfg,
+                                                spread=spread, steps=fleet), bank, t[:1], "ramp"))
     taus = t[1:][-cfg.window:]
     stage1 = [("step", fit(taus, "step")), ("ramp", fit(taus, "ramp"))]
     if slope is not None and cfg.wear:
-        stage1.append(("wear", _component_wear(partial(_fit_changes, D - np.outer(t, slope[0]), Wt, S, t, cfg=cfg,
-                                                       spread=slope[1], steps=fleet), bank, t[:1], "ramp")))
+        stage1.append(faster(slope))
     # 2. with the wear line as nuisance, wear faster than normal is tested on its own: the
     #    engine's whole-history rate (a ramp from the first flight, level only), against the
     #    fleet's normal wear when there is a fleet
@@ -1567,9 +1571,7 @@ def _first_stages(fit, D, Wt, S, t, bank, cfg, wear, fleet, slope=None):
         return [stage1]
     if wear is None:
         return [stage1, [("ramp", _component_wear(partial(fit, trend=False), bank, t[:1], "ramp"))]]
-    mean, spread = wear
-    return [stage1, [("wear", _component_wear(partial(_fit_changes, D - np.outer(t, mean), Wt, S, t, cfg=cfg,
-                                                      spread=spread, steps=fleet), bank, t[:1], "ramp"))]]
+    return [stage1, [faster(wear)]]
 
 
 #: a trend from the first flight is read as a sensor's (alone or with a component) only when all
@@ -2298,8 +2300,8 @@ def _erratic(dec: Decision, es: EngineSeries, D: np.ndarray, idx: np.ndarray, t:
             # against the fleet, its own before, and the engine's other sensors since (an engine
             # noisier than its fleet throughout, its T48 quieter on its first flights by chance,
             # read an erratic T48)
-            scale = max([1.0, float(np.median(y[s][:j]))] + ([float(np.median([level[o] for o in sensors if o != s]))]
-                                                               if len(sensors) > 1 else []))
+            others = [level[o] for o in sensors if o != s]
+            scale = max(1.0, float(np.median(y[s][:j])), float(np.median(others)) if others else 0.0)
             k = int(np.sum(y[s][j:] > scale * cut[s]))
             p = float(stats.binom.sf(k - 1, at.size - j, 1.0 - ERRATIC_QUANTILE))
             tests.append((p, level[s] / scale, s, at[j]))
