@@ -344,6 +344,28 @@ def test_a_unit_change_mid_history_serials_in_other_cases_and_no_data_codes(tmp_
     assert engine_named("esn004", {"ESN001"}) == "esn004"
 
 
+def test_a_channel_logged_in_degf_reads_missing_wherever_it_was(tmp_path, db, plan, recwarn):
+    """A ground station writing T30 in degF on half the engines from flight 4 (degF and K meet at
+    575 K: their T30 values are 6-28 % off the model in K, most under the 20 % of a gross
+    deviation): every one of them reads missing, named in one warning with the unit, and each
+    row is the row of the same table with those T30 values left blank (the reference). Before,
+    only the values beyond 20 % were missing; the rest were used as they were."""
+    rows = table_rows(plan)
+    half = list(plan.serial[::2])
+    degf = [r for r in rows if r["engine"] in half and r["flight"] >= 4]
+    blank = [dict(r, T30=np.nan) if r in degf else r for r in rows]
+    for r in degf:
+        r["T30"] = (r["T30"] - 273.15) * 1.8 + 32.0
+    recwarn.clear()
+    got = diagnose_fleet(read_snapshot_table(write_table(tmp_path / "degf.csv", rows), db), db)[0]
+    said = [str(w.message) for w in recwarn.list]
+    assert any(f"T30: {len(degf)} snapshot value(s) of {len(half)} engine(s)" in s and "degF" in s for s in said), said
+    ref = diagnose_fleet(read_snapshot_table(write_table(tmp_path / "blank.csv", blank), db), db)[0]
+    assert [(d.engine, d.flight) for d in got] == [(d.engine, d.flight) for d in ref]
+    for a, b in zip(got, ref):
+        assert (a.detected, a.cls, a.kind, a.onset, a.missing) == (b.detected, b.cls, b.kind, b.onset, b.missing), (a, b)
+
+
 def test_snapshots_with_times_of_their_own_and_dates_day_or_month_first(tmp_path, db, plan):
     """A report per snapshot (idle at 06:00, cruise at 08:00) with no flight numbers, its dates day-
     first (27/01/2026 08:00) or month-first with AM/PM: each engine's snapshots grouped into its

@@ -476,6 +476,9 @@ class EngineSeries:
     #: values read as missing for a deviation beyond :data:`GROSS_DEVIATION`: (flight position,
     #: channel, relative deviation, raw value)
     gross: list[tuple] = field(default_factory=list)
+    #: (n, m R) the snapshots' channel values as read (the database's units), for
+    #: :func:`read_in_other_units`; None where not kept
+    raw: np.ndarray | None = None
 
 
 #: a channel more than this far (relative) from the model's value at its operating point is no
@@ -492,7 +495,7 @@ def engine_series(flights: list[FlightRecord], sig: Signatures, n_regimes: int) 
     flights = in_flight_order(flights)[0]
     m, ncol, R = len(sig.channels), len(sig.columns), n_regimes
     n = len(flights)
-    D, SE = np.full((n, m * R), np.nan), np.full((n, m * R), np.nan)
+    D, SE, Y = np.full((n, m * R), np.nan), np.full((n, m * R), np.nan), np.full((n, m * R), np.nan)
     S, level = np.full((n, m * R, ncol), np.nan), np.full((n, ncol), np.nan)
     H = np.full((n, sig.db.n("h")), np.nan)
     gross = []
@@ -510,6 +513,7 @@ def engine_series(flights: list[FlightRecord], sig: Signatures, n_regimes: int) 
                 dev.d[j] = dev.se[j] = np.nan
             cols = slice(reg * m, (reg + 1) * m)
             D[i, cols], SE[i, cols], S[i, cols] = dev.d, dev.se, dev.S
+            Y[i, cols] = [mean[c] for c in dev.channels]
             if longest < 0 or s.samples[w] > s.samples[longest]:
                 longest = w
                 level[i] = dev.level
@@ -517,7 +521,57 @@ def engine_series(flights: list[FlightRecord], sig: Signatures, n_regimes: int) 
             H[i] = s.outputs["h_hat"][longest]
     names = [f"{c}@{reg}" for reg in range(R) for c in sig.channels]
     return EngineSeries(flights[0].engine if flights else "", flights, names, list(sig.columns),
-                        D, SE, S, level, H, list(sig.db.names["h"]), list(sig.db.names["u"]), gross)
+                        D, SE, S, level, H, list(sig.db.names["h"]), list(sig.db.names["u"]), gross, Y)
+
+
+#: a value off the model by more than this (beyond the largest deviation a fault gives in the
+#: simulated fleets, 7.5 %: :data:`GROSS_DEVIATION`) and within UNIT_FIT of it when read in the unit
+#: its channel's gross values point to is in that unit (:func:`read_in_other_units`)
+UNIT_SUSPECT = 0.1
+UNIT_FIT = 0.05
+
+
+def read_in_other_units(series: list[EngineSeries], units: dict) -> None:
+    """A unit mistake is a channel's over a stretch of flights, not a value's. Where a channel's
+    gross values (``EngineSeries.gross``, any engine) point to a unit not declared
+    (:func:`pwl.units.likely_units` of their typical value), each engine's values of it from the
+    first to the last flight in that unit (off the model by more than UNIT_SUSPECT, or gross, and
+    within UNIT_FIT of it read in that unit) are read as missing and added to ``gross``. T30 in
+    degF is 6 to 28 % off the model in K with the operating point (degF and K meet at 575 K):
+    written so on six healthy engines from flight 15 of the seed-11 table, 149 of their 180
+    values were under GROSS_DEVIATION and read as T30 faults (FPR 9.55 %). A fault's deviation (at most 7.5 % in the simulated fleets)
+    starts no stretch. In place."""
+    from ..units import converter, likely_units
+    by: dict[str, list] = {}
+    for es in series:
+        for _, c, d, raw in es.gross:
+            by.setdefault(c, []).append((d, raw))
+    for c, hits in by.items():
+        d, raw = np.array(hits).T
+        k = int(np.argsort(d)[d.size // 2])
+        model = raw[k] / (1.0 + d[k])
+        ways = [converter(u, units.get(c, "")) for u in likely_units(raw[k], units.get(c, ""), 0.95 * model,
+                                                                     1.05 * model)]
+
+        def other_unit(raw, d):
+            """Whether values ``raw`` (relative deviations ``d``) are off and in one of ``ways``."""
+            with np.errstate(invalid="ignore", divide="ignore"):
+                fits = [np.abs((raw * a + b) * (1.0 + d) / raw - 1.0) < UNIT_FIT for a, b in ways]
+                return (np.abs(d) > UNIT_SUSPECT) & np.any(fits, axis=0)
+
+        for es in series if ways else ():
+            cols = [j for j, name in enumerate(es.channels) if name.split("@")[0] == c]
+            g = [(i, dd, rr) for i, cc, dd, rr in es.gross if cc == c]
+            at = [i for i, dd, rr in g if other_unit(np.array(rr), np.array(dd))]
+            if es.raw is not None:
+                at += np.flatnonzero(other_unit(es.raw[:, cols], es.D[:, cols]).any(axis=1)).tolist()
+            if not at:
+                continue
+            for i in range(min(at), max(at) + 1):
+                for j in cols:
+                    if np.isfinite(es.D[i, j]):
+                        es.gross.append((i, c, float(es.D[i, j]), float(es.raw[i, j])))
+                        es.D[i, j] = es.SE[i, j] = np.nan
 
 
 def gross_note(series: list[EngineSeries], units: dict) -> list[str]:
@@ -527,7 +581,7 @@ def gross_note(series: list[EngineSeries], units: dict) -> list[str]:
     from ..units import likely_units
     by: dict[str, list] = {}
     for es in series:
-        for i, c, d, raw in es.gross:
+        for i, c, d, raw in sorted(es.gross, key=lambda g: g[0]):
             by.setdefault(c, []).append((es.engine, es.flights[i].label, d, raw))
     out = []
     for c, hits in by.items():
@@ -543,7 +597,7 @@ def gross_note(series: list[EngineSeries], units: dict) -> list[str]:
         where = ", ".join(f"{e} from {lb}" for e, lb in first.items()) + (", ..." if len(engines) > 3 else "")
         out.append(f"{c}: {len(hits)} snapshot value(s) of {len(engines)} engine(s) ({where}) "
                    f"{100 * d.min():+.0f} to {100 * d.max():+.0f} % off the model at their operating point, "
-                   f"beyond any fault of the engine: {why}; read as missing")
+                   f"beyond any fault of the engine or between such values: {why}; read as missing")
     return out
 
 
@@ -555,8 +609,16 @@ def noise_covariance(series: list[EngineSeries], floor: float) -> np.ndarray:
     three passes (squared Mahalanobis distance beyond the chi-square 99.9 % point). With fewer
     than 4 m complete differences (one engine alone) the robust variances with shrunk
     correlations (:func:`_shrunk_covariance`). Every
-    channel's variance is at least floor^2 plus its median snapshot standard error squared."""
+    channel's variance is at least floor^2 plus its median snapshot standard error squared; one
+    that no flight has (read as missing throughout: a unit mistake) floor^2, uncorrelated."""
     m = series[0].D.shape[1]
+    have = np.any([np.isfinite(s.D).any(axis=0) for s in series], axis=0)
+    if not have.all():
+        C = np.diag(np.full(m, floor ** 2))
+        if have.any():
+            C[np.ix_(have, have)] = noise_covariance([replace(s, D=s.D[:, have], SE=s.SE[:, have])
+                                                      for s in series], floor)
+        return C
     diffs, partial = [], []
     ses = []
     for s in series:
@@ -2420,6 +2482,7 @@ def diagnose_fleet(records: list[FlightRecord], db: GainDatabase,
     excluded = excluded or {}
     series = [excluding(engine_series(v, sig, len(centers)), excluded.get(e, ()))
               for e, v in group_engines(records).items()]
+    read_in_other_units(series, db.channel_units())
     for line in gross_note(series, db.channel_units()):
         warnings.warn(PwlWarning(line), stacklevel=2)
     Sigma = noise_covariance(series, cfg.floor)

@@ -25,7 +25,8 @@ import numpy as np
 from ..database import GainDatabase
 from ..errors import PwlWarning
 from .diagnose import (DiagnosisConfig, Decision, FlightRecord, diagnose_engine, engine_series, excluding,
-                       fleet_norms, gross_note, group_engines, mark_excluded, noise_covariance, prepare, recoveries)
+                       fleet_norms, gross_note, group_engines, mark_excluded, noise_covariance, prepare,
+                       read_in_other_units, recoveries)
 
 
 @dataclass
@@ -217,12 +218,13 @@ def engine_trend(records: list[FlightRecord], db: GainDatabase,
     excluded = excluded or {}
     es = engine_series(records, sig, len(centers))
     es = excluding(es, excluded.get(es.engine, ()))
+    series = [es] + [excluding(engine_series(v, sig, len(centers)), excluded.get(e, ()))
+                     for e, v in group_engines(others).items()]
+    read_in_other_units(series, db.channel_units())
     for note in gross_note([es], db.channel_units()):
         warnings.warn(PwlWarning(note), stacklevel=2)
     wear = level = None
     if others:
-        series = [es] + [excluding(engine_series(v, sig, len(centers)), excluded.get(e, ()))
-                         for e, v in group_engines(others).items()]
         Sigma = noise_covariance(series, cfg.floor)
         wear, level = fleet_norms(series, Sigma, cfg, detail_units(db))
     else:
