@@ -534,24 +534,20 @@ UNIT_FIT = 0.05
 def read_in_other_units(series: list[EngineSeries], units: dict) -> None:
     """A unit mistake is a channel's over a stretch of flights, not a value's. Where a channel's
     gross values (``EngineSeries.gross``, any engine) point to a unit not declared
-    (:func:`pwl.units.likely_units` of their typical value), each engine's values of it from the
-    first to the last flight in that unit (off the model by more than UNIT_SUSPECT, or gross, and
-    within UNIT_FIT of it read in that unit) are read as missing and added to ``gross``. T30 in
-    degF is 6 to 28 % off the model in K with the operating point (degF and K meet at 575 K):
-    written so on six healthy engines from flight 15 of the seed-11 table, 149 of their 180
-    values were under GROSS_DEVIATION and read as T30 faults (FPR 9.55 %). A fault's deviation (at most 7.5 % in the simulated fleets)
+    (:func:`_gross_units`), each engine's values of it from the first to the last flight in that
+    unit (off the model by more than UNIT_SUSPECT, or gross, and within UNIT_FIT of it read in
+    that unit) are read as missing and added to ``gross``. T30 in degF is 6 to 28 % off the model
+    in K with the operating point (degF and K meet at 575 K): written so on six healthy engines
+    from flight 15 of the seed-11 table, 149 of their 180 values were under GROSS_DEVIATION and
+    read as T30 faults (FPR 9.55 %). A fault's deviation (at most 7.5 % in the simulated fleets)
     starts no stretch. In place."""
-    from ..units import converter, likely_units
+    from ..units import converter
     by: dict[str, list] = {}
     for es in series:
         for _, c, d, raw in es.gross:
             by.setdefault(c, []).append((d, raw))
     for c, hits in by.items():
-        d, raw = np.array(hits).T
-        k = int(np.argsort(d)[d.size // 2])
-        model = raw[k] / (1.0 + d[k])
-        ways = [converter(u, units.get(c, "")) for u in likely_units(raw[k], units.get(c, ""), 0.95 * model,
-                                                                     1.05 * model)]
+        ways = [converter(u, units.get(c, "")) for u in _gross_units(*np.array(hits).T, units.get(c, ""))]
 
         def other_unit(raw, d):
             """Whether values ``raw`` (relative deviations ``d``) are off and in one of ``ways``."""
@@ -559,37 +555,41 @@ def read_in_other_units(series: list[EngineSeries], units: dict) -> None:
                 fits = [np.abs((raw * a + b) * (1.0 + d) / raw - 1.0) < UNIT_FIT for a, b in ways]
                 return (np.abs(d) > UNIT_SUSPECT) & np.any(fits, axis=0)
 
-        for es in series if ways else ():
+        for es in [es for es in series if es.raw is not None] if ways else []:
             cols = [j for j, name in enumerate(es.channels) if name.split("@")[0] == c]
-            g = [(i, dd, rr) for i, cc, dd, rr in es.gross if cc == c]
-            at = [i for i, dd, rr in g if other_unit(np.array(rr), np.array(dd))]
-            if es.raw is not None:
-                at += np.flatnonzero(other_unit(es.raw[:, cols], es.D[:, cols]).any(axis=1)).tolist()
-            if not at:
-                continue
-            for i in range(min(at), max(at) + 1):
+            at = [i for i, cc, d, raw in es.gross if cc == c and other_unit(np.array(raw), np.array(d))]
+            at += np.flatnonzero(other_unit(es.raw[:, cols], es.D[:, cols]).any(axis=1)).tolist()
+            for i in range(min(at), max(at) + 1) if at else ():
                 for j in cols:
                     if np.isfinite(es.D[i, j]):
                         es.gross.append((i, c, float(es.D[i, j]), float(es.raw[i, j])))
                         es.D[i, j] = es.SE[i, j] = np.nan
 
 
+def _gross_units(d: np.ndarray, raw: np.ndarray, unit: str) -> list[str]:
+    """The units (:func:`pwl.units.likely_units`) in which a channel's typical gross value (of
+    the relative deviations ``d`` beyond GROSS_DEVIATION, else all, the median's; values ``raw`` in
+    ``unit``) would be within 5 % of the model."""
+    from ..units import likely_units
+    big = np.abs(d) > GROSS_DEVIATION
+    d, raw = (d[big], raw[big]) if big.any() else (d, raw)
+    k = int(np.argsort(d)[d.size // 2])
+    model = raw[k] / (1.0 + d[k])
+    return likely_units(raw[k], unit, 0.95 * model, 1.05 * model)
+
+
 def gross_note(series: list[EngineSeries], units: dict) -> list[str]:
     """A line per channel with values read as missing for a gross deviation (``EngineSeries.gross``):
     how many, on which engines and flights, how far off, and the units that would bring the
     typical one within 5 % of the model (:func:`pwl.units.likely_units`)."""
-    from ..units import likely_units
     by: dict[str, list] = {}
     for es in series:
         for i, c, d, raw in sorted(es.gross, key=lambda g: g[0]):
             by.setdefault(c, []).append((es.engine, es.flights[i].label, d, raw))
     out = []
     for c, hits in by.items():
-        d = np.array([h[2] for h in hits])
-        k = int(np.argsort(d)[d.size // 2])
-        raw = hits[k][3]
-        model = raw / (1.0 + d[k])
-        guess = likely_units(raw, units.get(c, ""), 0.95 * model, 1.05 * model)
+        d, raw = np.array([h[2:] for h in hits]).T
+        guess = _gross_units(d, raw, units.get(c, ""))
         why = (f"logged in {' or '.join(guess)} there? Declare the unit" if guess
                else "a failed sensor, or a unit mistake?")
         engines = list(dict.fromkeys(h[0] for h in hits))
@@ -2226,9 +2226,10 @@ def _missing(channels: list[str], present: np.ndarray) -> str:
 
 #: a sensor bias standing at least this many of its per-flight standard deviations (its bias while
 #: on, :func:`_episode_size`, over the engine's whitened scatter) off its baseline is read on or
-#: off flight by flight: each flight is then 4 of them from the other state. A smaller one is read between the steps found (their
-#: segments' means). Measured: the seed-1 benchmark's sensor biases stand 30-500 of them off (fuel
-#: flow the least), the probe fleets' intermittent T48 biases (38 K) about 300
+#: off flight by flight: each flight is then 4 of them from the other state. A smaller one is
+#: read between the steps found (their segments' means). Measured: the seed-1 benchmark's sensor
+#: biases stand 30-500 of them off (fuel flow the least), the probe fleets' intermittent T48
+#: biases (38 K) about 300
 EPISODE_SEPARATION = 8.0
 
 
@@ -2257,8 +2258,9 @@ def _episodes(dec: Decision, found: list, seen: list, es: EngineSeries, rowsok, 
     when the bias while on (:func:`_episode_size`) is less than EPISODE_SEPARATION per-flight
     standard deviations, a segment between the steps found: their mean) is on when its reading
     is at least half that bias, of its sign. One episode, on: a step, sized from the baseline
-    unless the step found is the one that turned it on. One, off now: kind ``cleared``, not detected (status ``cleared``: a
-    repair), onset when it went off, sized as the bias that went away. Two or more, on or off:
+    unless the step found is the one that turned it on. One, off now: kind ``cleared``, not
+    detected (status ``cleared``: a repair), onset when it went off, sized as the bias that went
+    away. Two or more, on or off:
     kind ``intermittent``, detected (a loose connector is a fault also on the flights it reads
     right), onset the first episode's, sized as the latest episode's bias.
 
