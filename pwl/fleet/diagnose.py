@@ -555,11 +555,15 @@ def read_in_other_units(series: list[EngineSeries], units: dict) -> None:
                 fits = [np.abs((raw * a + b) * (1.0 + d) / raw - 1.0) < UNIT_FIT for a, b in ways]
                 return (np.abs(d) > UNIT_SUSPECT) & np.any(fits, axis=0)
 
-        for es in [es for es in series if es.raw is not None] if ways else []:
+        if not ways:
+            continue
+        for es in [es for es in series if es.raw is not None]:
             cols = [j for j, name in enumerate(es.channels) if name.split("@")[0] == c]
             at = [i for i, cc, d, raw in es.gross if cc == c and other_unit(np.array(raw), np.array(d))]
             at += np.flatnonzero(other_unit(es.raw[:, cols], es.D[:, cols]).any(axis=1)).tolist()
-            for i in range(min(at), max(at) + 1) if at else ():
+            if not at:
+                continue
+            for i in range(min(at), max(at) + 1):          # the stretch: every value of it, not only the off ones
                 for j in cols:
                     if np.isfinite(es.D[i, j]):
                         es.gross.append((i, c, float(es.D[i, j]), float(es.raw[i, j])))
@@ -884,7 +888,7 @@ def _trend_spread(series: list[EngineSeries], Sigma: np.ndarray, norm: FleetNorm
     health rates themselves (``spread``) was 5-20 times the truth on a 40-engine fleet: the rates
     of the weakly seen components are mostly the estimates' scatter, and an engine's drift from
     mid-history took it for normal wear."""
-    out, inside, trace, cs = [], [], [], []
+    out, inside, trace, cs, ranks, rests = [], [], [], [], [], []
     for es in series:
         if es.engine not in fits:
             continue
@@ -900,8 +904,12 @@ def _trend_spread(series: list[EngineSeries], Sigma: np.ndarray, norm: FleetNorm
         inside.append(float(np.sum((Q[:, :r].T @ y) ** 2)) / stats.chi2.median(r))
         trace.append(float(np.sum(A * A)) / r)
         cs.append(c)
-    n, c = len(cs), float(np.median(cs))
-    k_out = A.shape[0] - r
+        ranks.append(r)
+        rests.append(A.shape[0] - r)
+    # (the standard error of a median of n chi-square(k)/k: 1.253 sqrt(2 / k / n); k the engines'
+    # median degrees of freedom, each engine's own channels)
+    n, c, r = len(cs), float(np.median(cs)), float(np.median(ranks))
+    k_out = float(np.median([k for k in rests if k > 0])) if out else 0.0
     rho = max(0.0, float(np.median(out)) - 1.0) + 2.0 * 1.253 * np.sqrt(2.0 / k_out / len(out)) if out else 0.0
     s = max(0.0, float(np.median(inside)) - 1.0 - rho) + 2.0 * 1.253 * np.sqrt(2.0 / r / n)
     return s * c / float(np.median(trace)), rho * c
@@ -2260,9 +2268,9 @@ def _episodes(dec: Decision, found: list, seen: list, es: EngineSeries, rowsok, 
     is at least half that bias, of its sign. One episode, on: a step, sized from the baseline
     unless the step found is the one that turned it on. One, off now: kind ``cleared``, not
     detected (status ``cleared``: a repair), onset when it went off, sized as the bias that went
-    away. Two or more, on or off:
-    kind ``intermittent``, detected (a loose connector is a fault also on the flights it reads
-    right), onset the first episode's, sized as the latest episode's bias.
+    away. Two or more, on or off: kind ``intermittent``, detected (a loose connector is a fault
+    also on the flights it reads right), onset the first episode's, sized as the latest
+    episode's bias.
 
     Before, the steps found were read in turn from "off", the first turning the bias on: an
     intermittent T48 (+38 K on flights 4, 6, 9-13, 20, 21, 23; probe fleet C) whose one-flight
