@@ -996,3 +996,30 @@ def test_a_sensor_scattering_more_since_a_flight_is_erratic_and_plain_noise_is_n
         D[rng.integers(5, 30), rng.integers(0, 6)] += 10 * sd
         alarms += judged(D, DiagnosisConfig(alpha=0.02)) is not None
     assert alarms <= 0.02 * 300 + 3 * np.sqrt(0.02 * 300)
+
+
+def test_wear_that_levels_off_over_a_long_history_is_no_fault():
+    """Engines wearing fan and HPT fast at first and levelling off (0.4 % x (1 - exp(-t/60)) in
+    efficiency, a typical life's shape) over 160 flights, at a noise that shows the curve: the
+    change tests fit the latest ``window`` flights, so no flight alarms (a straight wear line
+    through every flight left steps of its curvature: on 7a72309 three of these four engines
+    read fan, HPT or pair steps from flights 14-28 on 47-60 flights each). On the same wear, an
+    HPT loss at flight 120 is found at its onset, with its class and size."""
+    S = synthetic_signatures()
+    sd = 1e-3
+    Sigma = np.eye(6) * sd ** 2
+    n = 160
+    t = np.arange(n)
+    worn = np.zeros((n, len(COLUMNS)))
+    worn[:, 0] = -0.004 * (1 - np.exp(-t / 60.0))
+    worn[:, 2] = -0.0028 * (1 - np.exp(-t / 60.0))
+    for seed in (1, 3, 4, 5):
+        D = worn @ S.T + np.random.default_rng(seed).normal(0, sd, (n, 6))
+        assert not [(r.flight, r.cls, r.onset) for r in diagnose_engine(series(D, S), Sigma, DiagnosisConfig())
+                    if r.detected]
+    D = worn @ S.T + np.random.default_rng(1).normal(0, sd, (n, 6))
+    D[120:] += S[:, 2:4] @ np.array([-0.01, 0.005])
+    rows = diagnose_engine(series(D, S), Sigma, DiagnosisConfig())
+    assert not any(r.detected for r in rows[:120])
+    assert all(r.detected and r.cls == "hpt" and r.onset == 120 for r in rows[122:])
+    assert rows[-1].magnitude == pytest.approx(-0.01, abs=0.002)

@@ -108,9 +108,10 @@ class DiagnosisConfig:
     the whole fleet may be rolled out over this many consecutive flights (:func:`common_steps`);
     level_floor: the engine-to-engine spread of what health does not explain in a baseline level is
     taken as at least this many times each channel's flight-to-flight scatter (:func:`level_reference`);
-    window: a new change is looked for at the latest ``window`` flights (a change further back that
-    no test found in as many flights after it is below what the data show; a flight's tests cost
-    in proportion, and a history of hundreds of flights took seconds a flight)."""
+    window: a new change is looked for at the latest ``window`` flights, fitted on them (a change
+    further back that no test found in as many flights after it is below what the data show; wear
+    is no straight line over hundreds of flights, :func:`_stages`; a flight's tests cost in
+    proportion)."""
 
     alpha: float = 1e-3
     kappa: float = 6.0
@@ -127,7 +128,7 @@ class DiagnosisConfig:
     wear: bool = True
     rollout: int = 4
     level_floor: float = 2.0
-    window: int = 100
+    window: int = 50
 
 
 @dataclass
@@ -1236,6 +1237,7 @@ def _fit_changes(D, Wt, S, t, taus, shape, bank, cfg, trend=False, steps=(), spr
     v = np.linalg.solve(Lw, WD[:, :, None])[:, :, 0]      # whitened change estimate, N(0, I) if none
     Sw = np.linalg.solve(Lw, np.broadcast_to(Wt @ S, (taus.size,) + S.shape))
     per = [dict() for _ in taus]
+    tl, El = list(taus), E.tolist()
     for his, cols in groups:                              # the hypotheses of one rank at once
         A = Sw[:, :, cols].transpose(0, 2, 1, 3)          # (K, hypotheses, m, rank)
         At = A.transpose(0, 1, 3, 2)
@@ -1246,9 +1248,14 @@ def _fit_changes(D, Wt, S, t, taus, shape, bank, cfg, trend=False, steps=(), spr
         b = (At @ v[:, None, :, None])[..., 0]
         th = (Gi @ b[..., None])[..., 0]
         T = np.sum(b * th, axis=-1)
-        for k, tau in enumerate(taus):
-            per[k].update((hi, (tau, hi, float(T[k, i]), th[k, i], Gi[k, i], float(E[k])))
-                          for i, hi in enumerate(his) if ok[k, i])
+        # (one tuple per fit: Python lists and row views, not numpy scalar indexing, which took
+        # a fifth of a long history's time)
+        rows, covs, T, ok = list(th.reshape(-1, th.shape[-1])), list(Gi.reshape((-1,) + Gi.shape[-2:])), T.tolist(), ok.tolist()
+        for k, (tau, e) in enumerate(zip(tl, El)):
+            at, Tk, fits = k * len(his), T[k], per[k]
+            for i, hi in enumerate(his):
+                if ok[k][i]:
+                    fits[hi] = (tau, hi, Tk[i], rows[at + i], covs[at + i], e)
     for k, fits in enumerate(per):
         curved = _curved(fits, within, bank, S, Wt, Cw[k], delta[k], g2[k] * wnorm2, cfg)
         out += [f for hi, f in fits.items() if hi not in curved]
@@ -1548,13 +1555,28 @@ def _stages(D, Wt, S, t, bank, cfg, wear, known, level=None, slope=None):
     wear faster :meth:`FleetNorm.trend`) or None, ``known`` the changes
     found, in the order found (:func:`_known`), and the engine's steps of a fleet-wide change
     (shape ``fleet``: a nuisance of every test, never a decision); ``slope``: the fleet's wear
-    line the engine's is held to (:meth:`FleetNorm.trend`), or None (free)."""
-    fit = partial(_fit_changes, D, Wt, S, t, bank=bank, cfg=cfg, trend=cfg.wear, slope=slope, **_nuisance(known))
+    line the engine's is held to (:meth:`FleetNorm.trend`), or None (free).
+
+    A new change is looked for at the latest ``cfg.window`` flights, fitted on them and the
+    flight before: an engine's wear is no straight line over hundreds of flights (fast at
+    first, then levelling off; fouling washed off), and a line through all of them left steps
+    of its curvature (a healthy engine of 150 flights read an HPT loss from flight 87). The
+    change found last is fitted again on those flights and the half window before its onset;
+    a drift found is fitted from before its onset (a shorter stretch is a straight line)."""
+    def since(lo, known):
+        """:func:`_fit_changes` on the flights from number ``lo`` on, measured from the changes
+        ``known`` among them."""
+        lo = min([lo] + [k.onset - cfg.n_base - 1 for k in known if k.shape == "ramp"])
+        u = t >= lo
+        return partial(_fit_changes, D[u], Wt, S, t[u], bank=bank, cfg=cfg, trend=cfg.wear, slope=slope,
+                       **_nuisance([k for k in known if k.onset > t[u][0]]))
+    recent = t[max(0, t.size - cfg.window - 1)]
     found = [k for k in known if k.shape != "fleet"]
     if found:   # a new change after the changes found, measured from them; else the last one again
-        last, new = found[-1], t[t > found[-1].onset][-cfg.window:]
-        others = _nuisance([k for k in known if k is not last])
-        again = fit(np.array([last.onset]), last.shape, **others)
+        last, fit = found[-1], since(recent, known)
+        new = t[t > max(last.onset, recent)]
+        local = since(min(recent, last.onset - cfg.window // 2), [k for k in known if k is not last])
+        again = local(np.array([last.onset]), last.shape)
         stages = [[("step", fit(new, "step")), ("ramp", fit(new, "ramp"))], [(last.shape, again)]]
         # a drift also as a step near its onset, first when that locates the change better, once
         # as many flights came after it as the shapes need to part (a step two flights old fitted
@@ -1563,11 +1585,12 @@ def _stages(D, Wt, S, t, bank, cfg, wear, known, level=None, slope=None):
         # flights apart (a bias from the second flight read a drift from the third every other flight)
         near = t[(np.abs(t - last.onset) <= REVISE_FLIGHTS) & (t > t[0])]
         if last.shape == "ramp" and t[-1] - last.onset >= 2 * REVISE_FLIGHTS and near.size:
-            other = fit(near, "step", **others)
+            other = local(near, "step")
             if other and again and max(f[5] for f in other) > max(f[5] for f in again):
                 stages.insert(1, [("step", other)])
         return stages
-    stages = _first_stages(fit, D, Wt, S, t, bank, cfg, wear, _nuisance(known)["steps"], slope)
+    fit = partial(_fit_changes, D, Wt, S, t, bank=bank, cfg=cfg, trend=cfg.wear, slope=slope, **_nuisance(known))
+    stages = _first_stages(fit, since(recent, known), D, Wt, S, t, bank, cfg, wear, _nuisance(known)["steps"], slope)
     if level is not None:
         # 3. nothing changed since the first flight: is the baseline itself off the fleet's?
         stages.append([("level", _level_fits(D, Wt, S, t, bank, cfg, level))])
@@ -1616,10 +1639,11 @@ def _calibrated(D, Sk, offsets, base: int) -> np.ndarray:
     return D
 
 
-def _first_stages(fit, D, Wt, S, t, bank, cfg, wear, fleet, slope=None):
+def _first_stages(fit, recent, D, Wt, S, t, bank, cfg, wear, fleet, slope=None):
     """Stages 1 and 2 of :func:`_stages` on an engine without a fault found (``fleet``: the
     flight numbers of its steps of a fleet-wide change, nuisances of ``fit`` too; ``slope``: the
-    fleet's wear line its own is held to, or None)."""
+    fleet's wear line its own is held to, or None). ``fit``: :func:`_fit_changes` on every flight,
+    ``recent`` on the latest ``cfg.window`` and the flight before (:func:`_stages`)."""
     # 1. a step or a drift that starts after the first flights, off the engine's wear line; held
     #    to the fleet's, with wear faster than the fleet's among them (a ramp from the first
     #    flight, its estimate carrying the fleet's spread of wear lines): else an engine wearing
@@ -1631,7 +1655,7 @@ def _first_stages(fit, D, Wt, S, t, bank, cfg, wear, fleet, slope=None):
         return ("wear", _component_wear(partial(_fit_changes, D - np.outer(t, mean), Wt, S, t, cfg=cfg,
                                                 spread=spread, steps=fleet), bank, t[:1], "ramp"))
     taus = t[1:][-cfg.window:]
-    stage1 = [("step", fit(taus, "step")), ("ramp", fit(taus, "ramp"))]
+    stage1 = [("step", recent(taus, "step")), ("ramp", recent(taus, "ramp"))]
     if slope is not None and cfg.wear:
         stage1.append(faster(slope))
     # 2. with the wear line as nuisance, wear faster than normal is tested on its own: the
@@ -2372,29 +2396,34 @@ def _erratic(dec: Decision, es: EngineSeries, D: np.ndarray, idx: np.ndarray, t:
     sq = np.diff(D, axis=0) ** 2 / (2.0 * np.diag(Sigma)[idx])
     keep = ~np.isin(t[1:], list(onsets)) & np.all(np.isfinite(sq), axis=1)
     at = t[1:][keep]
-    # each sensor's differences in units of its null's median, and its null's ERRATIC_QUANTILE point
-    y = {s: sq[keep][:, [j for j, nm in enumerate(names) if nm == s]].sum(axis=1) for s in sensors}
-    cut = {s: stats.chi2.ppf(ERRATIC_QUANTILE, names.count(s)) / stats.chi2.median(names.count(s)) for s in sensors}
-    y = {s: v / stats.chi2.median(names.count(s)) for s, v in y.items()}
-    tests = []
-    for j in range(ERRATIC_BEFORE, at.size - ERRATIC_AFTER + 1):
-        level = {s: float(np.median(v[j:])) for s, v in y.items()}
-        for s in sensors:
-            # against the fleet, its own before, and the engine's other sensors since (an engine
-            # noisier than its fleet throughout, its T48 quieter on its first flights by chance,
-            # read an erratic T48)
-            others = [level[o] for o in sensors if o != s]
-            scale = max(1.0, float(np.median(y[s][:j])), float(np.median(others)) if others else 0.0)
-            k = int(np.sum(y[s][j:] > scale * cut[s]))
-            p = float(stats.binom.sf(k - 1, at.size - j, 1.0 - ERRATIC_QUANTILE))
-            tests.append((p, level[s] / scale, s, at[j]))
-    if not tests:
+    # each sensor's differences (columns) in units of its null's median, and its null's
+    # ERRATIC_QUANTILE point
+    L = np.array([names.count(s) for s in sensors])
+    y = np.column_stack([sq[keep][:, [j for j, nm in enumerate(names) if nm == s]].sum(axis=1) for s in sensors])
+    y = y / stats.chi2.median(L)
+    cut = stats.chi2.ppf(ERRATIC_QUANTILE, L) / stats.chi2.median(L)
+    onset = np.arange(ERRATIC_BEFORE, at.size - ERRATIC_AFTER + 1)
+    if onset.size == 0:
         return False
-    p, ratio, sensor, onset = min(tests)
-    if p * len(tests) < cfg.alpha and ratio >= ERRATIC_RATIO and (dec.status == "ok" or dec.cls == f"sensor:{sensor}"):
+    level = np.array([np.median(y[j:], axis=0) for j in onset])          # (onsets, sensors)
+    before = np.array([np.median(y[:j], axis=0) for j in onset])
+    # against the fleet, its own before, and the engine's other sensors since (an engine noisier
+    # than its fleet throughout, its T48 quieter on its first flights by chance, read an erratic T48)
+    others = (np.nanmedian(np.where(np.eye(len(sensors), dtype=bool)[None], np.nan, level[:, None, :]), axis=2)
+              if len(sensors) > 1 else np.zeros_like(level))
+    scale = np.maximum(np.maximum(1.0, before), others)
+    count = np.array([np.sum(y[j:] > scale[i] * cut, axis=0) for i, j in enumerate(onset)])
+    p = stats.binom.sf(count - 1, (at.size - onset)[:, None], 1.0 - ERRATIC_QUANTILE)
+    ratio = level / scale
+    # the smallest p (ties: the smaller ratio, the sensor first by name, the earlier onset)
+    rank = np.broadcast_to(np.argsort(np.argsort(sensors)), p.shape)
+    i, c = np.unravel_index(np.lexsort([np.broadcast_to(onset[:, None], p.shape).ravel(), rank.ravel(),
+                                        ratio.ravel(), p.ravel()])[0], p.shape)
+    n_tests, p, ratio, sensor = p.size, float(p[i, c]), float(ratio[i, c]), sensors[c]
+    if p * n_tests < cfg.alpha and ratio >= ERRATIC_RATIO and (dec.status == "ok" or dec.cls == f"sensor:{sensor}"):
         dec.status = "ok"
-        dec.detected, dec.cls, dec.kind, dec.onset = 1, f"sensor:{sensor}", "erratic", int(onset)
-        dec.p_value, dec.statistic, dec.detail = min(1.0, p * len(tests)), ratio, f"scatter_ratio={np.sqrt(ratio):.3g}"
+        dec.detected, dec.cls, dec.kind, dec.onset = 1, f"sensor:{sensor}", "erratic", int(at[onset[i]])
+        dec.p_value, dec.statistic, dec.detail = min(1.0, p * n_tests), ratio, f"scatter_ratio={np.sqrt(ratio):.3g}"
         return True
     return False
 
