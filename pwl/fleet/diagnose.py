@@ -1250,12 +1250,13 @@ def _fit_changes(D, Wt, S, t, taus, shape, bank, cfg, trend=False, steps=(), spr
         T = np.sum(b * th, axis=-1)
         # (one tuple per fit: Python lists and row views, not numpy scalar indexing, which took
         # a fifth of a long history's time)
-        rows, covs, T, ok = list(th.reshape(-1, th.shape[-1])), list(Gi.reshape((-1,) + Gi.shape[-2:])), T.tolist(), ok.tolist()
+        thetas, covs = list(th.reshape(-1, th.shape[-1])), list(Gi.reshape((-1,) + Gi.shape[-2:]))
+        T, ok = T.tolist(), ok.tolist()
         for k, (tau, e) in enumerate(zip(tl, El)):
             at, Tk, fits = k * len(his), T[k], per[k]
             for i, hi in enumerate(his):
                 if ok[k][i]:
-                    fits[hi] = (tau, hi, Tk[i], rows[at + i], covs[at + i], e)
+                    fits[hi] = (tau, hi, Tk[i], thetas[at + i], covs[at + i], e)
     for k, fits in enumerate(per):
         curved = _curved(fits, within, bank, S, Wt, Cw[k], delta[k], g2[k] * wnorm2, cfg)
         out += [f for hi, f in fits.items() if hi not in curved]
