@@ -186,7 +186,8 @@ def test_diagnosis_deviations_on_a_hot_day(dbs):
     mean0 |= {"alt": p[0], "Mach": p[1], "T2": T20, "P2": P20}
     d0 = Signatures(amb).at(mean0, {}).d
     assert np.abs(d_amb - d0).max() < 5e-4, np.abs(d_amb - d0).max()
-    assert np.abs(d_std - d0).max() > 10 * np.abs(d_amb - d0).max()
+    # (the standard-day database has no inlet recovery, so no air-data channel: its channels first)
+    assert np.abs(d_std - d0[:d_std.size]).max() > 10 * np.abs(d_amb - d0).max()
 
 
 def test_ambient_record_round_trip_and_checks(dbs, tmp_path):

@@ -1023,3 +1023,32 @@ def test_wear_that_levels_off_over_a_long_history_is_no_fault():
     assert not any(r.detected for r in rows[:120])
     assert all(r.detected and r.cls == "hpt" and r.onset == 120 for r in rows[122:])
     assert rows[-1].magnitude == pytest.approx(-0.01, abs=0.002)
+
+
+def test_a_channel_only_a_sensor_moves_tells_its_bias_from_a_recovery():
+    """A sensor C whose bias moves six channels exactly as fan and HPT getting 1 % better in
+    efficiency and flow (a wash), and a seventh channel only it moves (the turbofan's inlet
+    pressure against the air data, ``Signatures.air``), on four engines (signatures and noise
+    drawn per engine). The wash from flight 15: without the seventh channel the cheaper bias (one
+    parameter against the pair's four) is read, sensor C on every flight; with it the wash is the
+    pair's recovery by flight 16, nothing detected after it. A true bias of C is C with the seventh
+    channel too."""
+    sd = 1e-3
+    for seed in range(4):
+        rng = np.random.default_rng(seed)
+        S = np.zeros((7, len(COLUMNS)))
+        S[:6, :4] = rng.normal(0, 1.0, (6, 4))
+        wash = np.full(4, 0.01)
+        S[:6, 6] = S[:6, :4] @ wash
+        S[6, 6] = 0.01
+        for case, change, m in (("wash", S[:, :4] @ wash, 6), ("wash", S[:, :4] @ wash, 7), ("bias", S[:, 6], 7)):
+            D = rng.normal(0, sd, (30, 7))
+            D[15:] += change
+            rows = diagnose_engine(series(D[:, :m], S[:m]), np.eye(m) * sd ** 2, DiagnosisConfig())
+            assert not any(r.detected for r in rows[:15])
+            if case == "wash" and m == 7:
+                rec = [(r.cls, r.onset) for r in rows[15:17] if r.status == "recovery"]
+                assert rec == [("fan+hpt", 15)], (seed, [(r.flight, r.status, r.cls) for r in rows[14:20]])
+                assert not any(r.detected for r in rows[17:])
+            else:
+                assert all(r.detected and r.cls == "sensor:C" and r.onset == 15 for r in rows[15:]), (seed, case, m)

@@ -338,7 +338,7 @@ def turbofan_series(health: dict, onset=6, n=12, seed=8):
     healthy = [deviation(p, None) for p in points]
     faulty = [deviation(p, hv) for p in points]
     m = len(sig.channels)
-    sd = np.tile(TURBOFAN_SD, len(points))
+    sd = np.tile(np.r_[TURBOFAN_SD, [3e-4] * sig.air], len(points))     # (P2 against the air data)
     D = np.random.default_rng(seed).normal(0, sd, (n, m * len(points)))
     D[:onset] += np.concatenate([d.d for d in healthy])
     D[onset:] += np.concatenate([d.d for d in faulty])

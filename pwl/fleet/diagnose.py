@@ -776,9 +776,12 @@ class FleetNorm:
     def at(self, S: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(mean (k,), covariance (k, k)) in the deviation channels ``idx`` (k,) with signatures
         S (k, ncol): S_h median, S_h diag(spread^2) S_h^T + diag(rest[idx]^2) (engine-to-engine
-        differences no health parameter explains, such as sensor calibrations)."""
+        differences no health parameter explains, such as sensor calibrations). A channel no
+        health parameter moves (the inlet pressure against the air data) has the engines' median
+        as its mean (the model's inlet pressure recovery: 0.5 % under full ram on the turbofan)."""
         Sh = S[:, self.columns]
-        return Sh @ self.median, (Sh * self.spread ** 2) @ Sh.T + np.diag(self.rest[idx] ** 2)
+        alone = np.where(np.any(Sh != 0.0, axis=1), 0.0, self.rest_median[idx])
+        return Sh @ self.median + alone, (Sh * self.spread ** 2) @ Sh.T + np.diag(self.rest[idx] ** 2)
 
     def trend(self, S: np.ndarray, idx: np.ndarray, Sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(mean (k,), covariance (k, k)) of a healthy engine's wear line (deviation per flight) in

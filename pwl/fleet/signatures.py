@@ -78,6 +78,13 @@ class Signatures:
         self.inlet = [c for c in ((corr.theta_channel, corr.delta_channel) if corr else ())
                       if c not in names["y"] and c not in names["u"]]
         self.columns = list(names["h"]) + [f"sensor:{c}" for c in list(names["y"]) + list(names["u"]) + self.inlet]
+        # the inlet pressure against the one the air data give (pressure altitude, Mach and the
+        # plant's inlet recovery, :meth:`GainDatabase.inlet_from_air_data`), when the database can:
+        # a channel only that sensor's bias moves (a fan and HPC wash read as a P2 bias of -0.3 %:
+        # in the other channels an inlet sensor's bias fits a change of two components nearly as well)
+        self.air = bool(corr) and corr.delta_channel in self.inlet and db.derives_inlet()
+        if self.air:
+            self.channels = self.channels + [corr.delta_channel]
         self.d_axes = [names["p"].index(a) for a in db.dyn_grid.names]
 
     def theta_delta(self, mean: dict) -> tuple[float, float]:
@@ -104,6 +111,9 @@ class Signatures:
         their correction factors and corrected trims."""
         ydev = [self.db.names["y"].index(c) for c in self.dev_y]
         fac, ref = np.r_[fy[ydev], fu], np.r_[trim["y"][ydev], trim["u"]]
+        if self.air:
+            air = self.db.inlet_from_air_data(np.array([[mean[c] for c, _, _ in self.db.schedule]]))
+            fac, ref = np.r_[fac, 1.0], np.r_[ref, air]
         return np.array([mean[c] for c in self.channels]) / fac / ref - 1.0, fac, ref
 
     def at(self, mean: dict, se: dict) -> Deviation:
@@ -135,11 +145,14 @@ class Signatures:
         Mh[:, :nh] = mat["M"]
         dy = mat["C"] @ dx + mat["D"] @ du + Mh
         ydev = [nm["y"].index(c) for c in self.dev_y]
-        S = np.vstack([dy[ydev] / trim["y"][ydev, None], du / trim["u"][:, None]])
-        for r, c in enumerate(self.channels):                    # own biases: unit columns
+        S = np.vstack([dy[ydev] / trim["y"][ydev, None], du / trim["u"][:, None]] +
+                      [np.zeros((1, nh + nb))] * self.air)          # (the air data's: no health moves it)
+        for r, c in enumerate(self.channels[:len(self.channels) - self.air]):   # own biases: unit columns
             S[r, nh + (nm["y"].index(c) if c in nm["y"] else db.n("y") + nm["u"].index(c))] += 1.0
         fy, fu = self._factors(th, de)
         d, fac, ref = self._relative(mean, fy, fu, trim)
+        if self.air and abs(d[-1]) < 1e-12:       # an inlet pressure taken from the air data: none of its own
+            d[-1] = np.nan
         s = np.array([se.get(c, np.nan) for c in self.channels]) / fac / ref
         level = np.r_[np.full(nh, np.nan), trim["y"] * fy, trim["u"] * fu, [mean[c] for c in self.inlet]]
         S[:, nh:nh + db.n("y")] /= level[nh:nh + db.n("y")]     # sensed outputs: offsets in raw units
