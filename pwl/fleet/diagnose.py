@@ -778,7 +778,9 @@ class FleetNorm:
         S (k, ncol): S_h median, S_h diag(spread^2) S_h^T + diag(rest[idx]^2) (engine-to-engine
         differences no health parameter explains, such as sensor calibrations). A channel no
         health parameter moves (the inlet pressure against the air data) has the engines' median
-        as its mean (the model's inlet pressure recovery: 0.5 % under full ram on the turbofan)."""
+        as its mean: what the air-data relation leaves in common (measured -0.005 % and +0.0006 %
+        at the turbofan's ground idle and cruise; with full ram recovery instead of the plant's,
+        -0.5 %: every engine read a P2 level)."""
         Sh = S[:, self.columns]
         alone = np.where(np.any(Sh != 0.0, axis=1), 0.0, self.rest_median[idx])
         return Sh @ self.median + alone, (Sh * self.spread ** 2) @ Sh.T + np.diag(self.rest[idx] ** 2)

@@ -19,7 +19,9 @@ bias is an offset in its raw unit (a thermocouple reading 15 K high, at any powe
 relative (a fuel-flow meter reading 2 % high). Biases of non-scheduling channels move only their
 own deviation; a scheduling-sensor bias moves the operating point and so every other channel, and
 so does a bias of the inlet sensors that theta and delta come from (T2, P2: the correction, the
-corrected operating point and the day's trims move), whose columns are taken numerically.
+corrected operating point and the day's trims move), whose columns are taken numerically. Where
+the database gives the inlet pressure from the air data (pressure altitude, Mach and the plant's
+recovery), the logged one's deviation from it is one more channel, which only a P2 bias moves.
 docs/diagnostics.md derives it; tests compare S with trims of the nonlinear model.
 """
 from __future__ import annotations
