@@ -82,7 +82,7 @@ def test_an_inlet_sensor_column_against_the_plant(channel, bias):
         air = [mean["P2"] / plant.inlet(env)[1] - 1.0] if sig.air else []
         return np.array([(mean[c] / (th ** ex[c][0] * de ** ex[c][1]))
                          / (trim[c] / (pth ** ex[c][0] * pde ** ex[c][1])) - 1.0
-                         for c in sig.channels[:len(sig.channels) - len(air)]] + air)
+                         for c in sig.sensed] + air)
 
     for p, dT in REGIMES:
         mean = snapshot(db, plant, p, dT)

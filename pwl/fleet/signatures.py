@@ -74,7 +74,8 @@ class Signatures:
                 f"there are inputs (the turbofan: NfR from Nf, one fuel flow); this database schedules on "
                 f"{[c for c, _, _ in db.schedule]} with inputs {names['u']}")
         self.dev_y = [c for c in names["y"] if c not in self.sched_y]
-        self.channels = self.dev_y + list(names["u"])
+        self.sensed = self.dev_y + list(names["u"])      # deviations from the trims
+        self.channels = list(self.sensed)
         corr = db.correction
         # the inlet's temperature and pressure sensors (theta, delta) when no input or output is one
         self.inlet = [c for c in ((corr.theta_channel, corr.delta_channel) if corr else ())
@@ -149,7 +150,7 @@ class Signatures:
         ydev = [nm["y"].index(c) for c in self.dev_y]
         S = np.vstack([dy[ydev] / trim["y"][ydev, None], du / trim["u"][:, None]] +
                       [np.zeros((1, nh + nb))] * self.air)          # (the air data's: no health moves it)
-        for r, c in enumerate(self.channels[:len(self.channels) - self.air]):   # own biases: unit columns
+        for r, c in enumerate(self.sensed):                     # own biases: unit columns
             S[r, nh + (nm["y"].index(c) if c in nm["y"] else db.n("y") + nm["u"].index(c))] += 1.0
         fy, fu = self._factors(th, de)
         d, fac, ref = self._relative(mean, fy, fu, trim)
