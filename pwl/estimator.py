@@ -15,8 +15,8 @@ from .airdata import LAG_SIGMAS, LAG_WARN, altitude_slip, disagree, inlet_pressu
 from .database import AMBIENT_REACH, GainDatabase
 from .grid import Axis, Grid
 from .h5io import atomic_h5
-from .logs import (Log, LogError, check_time, read_header, read_log, read_rows, resample, rows_missing, sample_interval,
-                   time_gaps)
+from .logs import (Log, LogError, check_time, gap_starts, read_header, read_log, read_rows, resample, rows_missing,
+                   sample_interval, time_gaps)
 from .runtime import (NEVER, SMALLEST_ROW, FLAG_AIR_DATA, FLAG_DYN_OUTSIDE, FLAG_HEALTH_HELD, FLAG_HELD_INPUT, FLAG_IMPLAUSIBLE, FLAG_NO_UPDATE, FLAG_NOT_STARTED,
                       FLAG_SETTLING, FLAG_STUCK, FLAG_TRIM_FILLED, FLAG_TRIM_OUTSIDE, HEALTH_HOLD_RATIO, MISFIT_SIGMAS, STUCK_AFTER,
                       STUCK_SIGMAS, Bias, Filter, Inputs, Outputs, PackedModel, blank_implausible, filter_loop, report, screen, spike_mask, burst_mask, state_layout)
@@ -1025,6 +1025,7 @@ class Estimator:
         else:
             log = read_log(log, channel_map=self.channel_map)
         self._warn_absent(log)
+        self._warn_gaps(log)
         if reset:
             res = self._second_opinions(log.path, lambda: self._run_log(log, True))
         else:
@@ -1032,6 +1033,24 @@ class Estimator:
         self._warn_absent(log, dead=True)
         self._warn_channels(log.path, len(res.time))
         return res
+
+    def _warn_gaps(self, log: Log) -> None:
+        """A warning naming the gaps of a log's time column (:func:`pwl.logs.gap_starts`), if any:
+        the filter predicts through them on the database's time grid (:meth:`_run_resampled`)."""
+        g = gap_starts(log.time)
+        if not g.size:
+            return
+        t = log.time
+        span = float(np.sum(t[g + 1] - t[g]))
+        runs = np.split(g, np.flatnonzero(np.diff(g) != 1) + 1)      # gaps one after the other
+        run = max(runs, key=len)
+        slow = (f"; every step from t = {t[run[0]]:.6g} to {t[run[-1] + 1]:.6g} s is one: logged at a lower rate "
+                "there?" if run.size >= 10 else "")
+        warnings.warn(f"{log.path}: {g.size} gap(s) in the time column, {span:.4g} s of the log's "
+                      f"{t[-1] - t[0]:.4g} s (the first at t = {t[g[0]]:.6g} s, the longest "
+                      f"{float(np.max(t[g + 1] - t[g])):.4g} s{slow}); the filter predicts through them, inputs "
+                      f"held, and settles again after one longer than its settling time ({self.settle:.3g} s)",
+                      PwlWarning, stacklevel=3)
 
     #: a run again with sensors used after misfitting for the filter's settling time is kept when it
     #: misfits on at most this share of the first run's misfitting samples (P2 frozen for a minute
@@ -1191,8 +1210,8 @@ class Estimator:
         dt, want = sample_interval(log.time), self.db.dt
         if not np.isfinite(dt):
             return False
-        if abs(dt / want - 1.0) <= self.DT_TOLERANCE:    # rows missing: no rate change, no opt-in
-            return rows_missing(log.time, want) > self.MISSING_ROWS * len(log)
+        if abs(dt / want - 1.0) <= self.DT_TOLERANCE:    # rows missing or gaps: no rate change, no opt-in
+            return rows_missing(log.time, want) > self.MISSING_ROWS * len(log) or time_gaps(log.time)[0] > 0
         # a step that is a time unit's factor times dt (a time column in ms read as s) is refused
         # even with resample, which would make 1000x the samples out of nothing
         for unit, (quantity, seconds, _) in UNITS.items():
