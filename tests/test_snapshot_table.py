@@ -538,3 +538,33 @@ def test_a_sensor_noisier_since_a_flight_is_erratic(tmp_path, db):
     assert sum(d.detected and d.cls == "sensor:T30" for d in late) >= 8, [(d.flight, d.cls, d.kind) for d in late]
     assert sum(d.kind == "erratic" and abs(d.onset - 15) <= 2 for d in late) >= 4, [(d.flight, d.cls, d.kind) for d in late]
     assert not any(d.kind == "erratic" for d in got if d.engine != "ESN015")
+
+
+def test_a_loss_of_flow_capacity_alone_is_a_fault_not_maintenance(tmp_path, db, monkeypatch):
+    """Two healthy engines of the seed-11 fleet (five readings a snapshot) given a change of one
+    component's flow capacity alone from flight 12 (the plant's trims with that health): ESN014's
+    HPT eroded (flow +2 %), ESN021's LPC fouled in flow only (-2 %), diagnosed with 11 other
+    engines. Each is found as its component's step from flight 12 and reported on every later
+    flight. Before, a 'recovery' was read by the sign of the efficiency's noise (+0.09 +- 0.16 %,
+    +0.19 +- 0.53 %) and the new baseline lost the fault for the rest of the history."""
+    p = fleet.plan_fleet(40, 30, seed=11)
+    change = {p.serial.index("ESN014"): ("hpt_flow", 0.02), p.serial.index("ESN021"): ("lpc_flow", -0.02)}
+    keep = list(change) + [p.serial.index(f"ESN{k:03d}") for k in range(24, 35)]
+    health = fleet.health_at
+
+    def changed(plan, e, j):
+        h = health(plan, e, j)
+        if e in change and j >= 12:
+            h[fleet.H_NAMES.index(change[e][0])] += change[e][1]
+        return h
+    monkeypatch.setattr(fleet, "health_at", changed)
+    rows = [r for e in keep for j in range(p.flights) for r in fleet.snapshot_rows(p, e, j, 5)]
+    monkeypatch.undo()
+    rows_of = {}
+    for d in diagnose_fleet(read_snapshot_table(write_table(tmp_path / "t.csv", rows), db), db)[0]:
+        rows_of.setdefault(d.engine, []).append(d)
+    for serial, comp in (("ESN014", "hpt"), ("ESN021", "lpc")):
+        got = rows_of[serial]
+        assert not any(d.detected or d.kind == "recovery" for d in got[:12]), serial
+        assert all(d.detected and d.cls == comp and d.onset == 12 for d in got[14:]), \
+            [(d.flight, d.status, d.cls, d.kind, d.onset) for d in got]

@@ -1330,6 +1330,34 @@ def _curved(fits: dict, within: dict, bank, S, Wt, Cw, delta, scale, cfg) -> set
     return out
 
 
+#: a component change is its flow capacity's alone (not maintenance: :func:`_maintenance`) when its
+#: efficiency rose by less than this share of its flow's change and by less than MAINTENANCE_Z
+#: standard errors, the flow's change beyond them: flow-only changes of 2 % read 0.05-0.27 (the
+#: LPC's efficiency +0.5 +- 0.5 % one flight after), fan and HPC washes on their first flights
+#: 0.65-0.95 (probe_tables), their fan efficiency 1.6-2.3 se
+MAINTENANCE_SHARE = 0.5
+MAINTENANCE_Z = 2.0
+
+
+def _maintenance(names: list[str], th: np.ndarray, cov: np.ndarray) -> bool:
+    """Whether a change of health columns ``names`` (fitted ``th``, covariance ``cov``; sensor
+    columns may be among them) is maintenance, a wash or a repair: every efficiency rises, and no
+    component's change is its flow capacity's alone (:data:`MAINTENANCE_SHARE`). An HPT eroding
+    2 % of flow capacity with its efficiency unmoved (+0.09 +- 0.16 %), an LPC fouled 2 % in flow
+    only (+0.19 +- 0.53 %), read as recoveries by the sign of the efficiency's noise, and the new
+    baseline lost the fault."""
+    effs = [i for i, n in enumerate(names) if n.endswith("_eff")]
+    if not effs or min(th[i] for i in effs) <= 0:
+        return False
+    sd = np.sqrt(np.diag(cov))
+    for i in effs:
+        for k, n in enumerate(names):
+            if k != i and component(n) == component(names[i]) and abs(th[k]) >= MAINTENANCE_Z * sd[k] and \
+                    th[i] < min(MAINTENANCE_SHARE * abs(th[k]), MAINTENANCE_Z * sd[i]):
+                return False
+    return True
+
+
 def _decide(dec, stage, bank, S, t, es, rowsok, n_tests, cfg, held=False) -> bool:
     """The change point and shape of one stage with the largest likelihood gain of an
     unconstrained change, then the hypothesis there with the largest T - cost; fill ``dec`` and
@@ -1353,8 +1381,8 @@ def _decide(dec, stage, bank, S, t, es, rowsok, n_tests, cfg, held=False) -> boo
         if not here:
             continue
         _, hi, T, th, cov, _ = max(here, key=lambda f: f[2] - bank[f[1]].cost(cfg))
-        effs = [v for c, v in zip(bank[hi].columns, th) if es.columns[c].endswith("_eff")]
-        if not (shape in ("ramp", "wear") and effs and min(effs) > 0):
+        better = _maintenance([es.columns[c] for c in bank[hi].columns], th, cov)
+        if not (shape in ("ramp", "wear") and better):
             break
     else:
         return False
@@ -1377,7 +1405,7 @@ def _decide(dec, stage, bank, S, t, es, rowsok, n_tests, cfg, held=False) -> boo
         big = size >= floor and size * (t[-1] - tau + 1) >= cfg.min_step
     else:
         big = size >= cfg.min_step
-    if not (p < cfg.alpha and big) or (shape in ("wear", "level") and effs and min(effs) > 0):
+    if not (p < cfg.alpha and big) or (shape in ("wear", "level") and better):
         return False
     # confidence among the bank at the chosen change point and shape
     sc = np.array([f[2] - bank[f[1]].cost(cfg) for f in here])
@@ -1391,7 +1419,7 @@ def _decide(dec, stage, bank, S, t, es, rowsok, n_tests, cfg, held=False) -> boo
         # component's: wear; a fan wearing 0.05 %/flight from flight 0 read a drift from flight 2)
         tau = t[0]
         dec.kind = "drift" if "sensor:" in h.name else "wear"
-    if shape == "step" and effs and min(effs) > 0:     # every efficiency up: maintenance, not a fault
+    if shape == "step" and better:     # every efficiency up: maintenance, not a fault
         dec.detected, dec.kind, dec.status = 0, "recovery", "recovery"
     dec.onset = int(tau)
     dec.confidence = float(w[order[0]])
@@ -2234,9 +2262,8 @@ def _remaining(dec, faults, known, D, Wt, S, t, bank, cfg, n_tests, es) -> list:
         at = [union.index(c) for c in cols[f.cls]]
         part, pcov = th[at], cov[np.ix_(at, at)]
         wald = float(part @ np.linalg.solve(pcov, part))
-        effs = [v for c, v in zip(cols[f.cls], part) if es.columns[c].endswith("_eff")]
-        if stats.chi2.sf(wald, len(at)) * n_tests < cfg.alpha and \
-                np.linalg.norm(S[:, cols[f.cls]] @ part) >= cfg.min_step and not (effs and min(effs) > 0):
+        if stats.chi2.sf(wald, len(at)) * n_tests < cfg.alpha and np.linalg.norm(S[:, cols[f.cls]] @ part) \
+                >= cfg.min_step and not _maintenance([es.columns[c] for c in cols[f.cls]], part, pcov):
             left.append((f, part, pcov))
     return left
 
