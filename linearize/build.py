@@ -130,8 +130,15 @@ def _plant(ref):
     return _PLANTS[ref]
 
 
-def trim_line(ref, points, h, span: float = 0.0):
-    """Trims at ``points`` (k, np) in the given order, each warm-started from the last success.
+#: what a resumed build says of what it compared (docs/building.md)
+RESUME_NOTE = (" (same spec, plant parameters and Python code; data files the plant reads are not compared: "
+               "remove the folder if one changed)")
+
+
+def trim_line(ref, points, h, dt: float, span: float = 0.0):
+    """Trims at ``points`` (k, np) in the given order, each warm-started from the last success,
+    each checked to be the plant's steady state (:func:`linearize.plant.check_steady` at step
+    ``dt`` s).
 
     With ``span`` > 0 K also the trims' change with the day's ambient at each point: trimmed again
     at ISA +- span (warm-started from the standard day's trim), in corrected units,
@@ -148,10 +155,13 @@ def trim_line(ref, points, h, span: float = 0.0):
     guess = None
     for i, p in enumerate(points):
         try:
-            t = plant.trim(np.asarray(p, dtype=np.float64), h, plant.environment(p), guess=guess)
+            env = plant.environment(p)
+            t = plant.trim(np.asarray(p, dtype=np.float64), h, env, guess=guess)
             vals = {k: np.asarray(t[k], dtype=np.float64).reshape(-1) for k in "xuyz"}
-            if not all(np.all(np.isfinite(v)) for v in vals.values()):
-                raise ValueError("trim returned non-finite values")
+            bad = [k for k, v in vals.items() if not np.all(np.isfinite(v))]
+            if bad:
+                raise ValueError(f"trim returned non-finite values in {', '.join(bad)}")
+            proto.check_steady(plant, vals, h, env, dt)
             for k in "xuyz":
                 out[k][i] = vals[k]
             guess = t
@@ -209,6 +219,7 @@ def dynamics_point(ref, p, h, guess, dt, method, overrides):
     plant = _plant(ref)
     env = plant.environment(p)
     t = plant.trim(np.asarray(p, dtype=np.float64), h, env, guess=guess)
+    proto.check_steady(plant, t, h, env, dt)
     mats, info = jacobians(plant, t, h, env, method, overrides)
     if getattr(plant, "time", "continuous") == "continuous":
         mats = discretize(mats, dt)
@@ -460,6 +471,11 @@ def build(spec: BuildSpec, out_path, *, plant=None, executor: Executor | None = 
     if not 1 <= spec.n_tuners <= len(names["h"]):
         raise SpecError(f"{spec.path}: [tuners] n = {spec.n_tuners} must be in 1..{len(names['h'])} "
                         f"(the plant's health parameters)")
+    if spec.n_tuners > len(names["y"]):
+        # a tuner is constant in the filter's model: with more of them than sensors, some
+        # combination of tuners moves no sensor at steady state and the system is not detectable
+        raise SpecError(f"{spec.path}: [tuners] n = {spec.n_tuners} is more than the plant's {len(names['y'])} "
+                        f"sensors ({', '.join(names['y'])}): at most as many tuners as sensors can be estimated")
     if getattr(plant, "time", "continuous") == "discrete" and abs(plant.dt - spec.dt) > 1e-12 * spec.dt:
         raise SpecError(f"{spec.path}: dt = {spec.dt} but the discrete plant's dt is {plant.dt}")
 
@@ -540,6 +556,9 @@ def build(spec: BuildSpec, out_path, *, plant=None, executor: Executor | None = 
                "trim_failures": trim_errors,
                "dynamics_failures": dyn_errors},
         path=os.fspath(out_path))
+    if not db.attrs["health_ranges"]:
+        log(f"warning: {who} declares no plausible range of its health parameters (plant.ranges, "
+            "docs/plant-protocol.md): an estimate far out (a sensor bias read as health) is not flagged implausible")
     db.save(out_path)
     if not keep_parts:
         parts.remove()
@@ -593,8 +612,13 @@ def design_filter(pts, names, dg, dyn_status, n_tuners, method, Ph, targets, pro
     bar.finish()
     subset_metric = metric
     q_names = [names["h"][int(np.argmax(r))] for r in V]
-    log(f"tuners (subset, n = {n_tuners}): {', '.join(q_names)}; metric {metric:.4g}; runner-up "
-        + ", ".join(f"{[names['h'][j] for j in S]} {m:.4g}" for m, S in ranking[1:3]))
+    log(f"tuners (subset, n = {n_tuners}): {', '.join(q_names)}; metric {metric:.4g}" + (
+        "; runner-up " + ", ".join(f"{[names['h'][j] for j in S]} {m:.4g}" for m, S in ranking[1:3])
+        if len(ranking) > 1 else ""))
+    left = [h for h in names["h"] if h not in q_names]
+    if method == "subset" and left:
+        log(f"not estimated: {', '.join(left)} (no tuner: its estimate stays 0, a change of it is read in "
+            "the tuners; the tuner metric weighs that error)")
     if method == "optimal":
         bar = Progress("optimal", 40, progress)
         V, metric, mse = optimal_tuners(tuned, V, Ph, targets, progress=lambda d, n: bar.update(d),
@@ -812,9 +836,9 @@ def _trims(spec, ref, who, names, h0, executor, parts, progress, span=0.0):
         if got is not None:
             record(sl, got, [""] * n)
         else:  # from the top of the power axis down: trims converge best near design power
-            tasks.append((name, (ref, nodes[sl][::-1], h0, span)))
+            tasks.append((name, (ref, nodes[sl][::-1], h0, spec.dt, span)))
     if len(tasks) < len(lines):
-        notice(f"resuming: reusing {(len(lines) - len(tasks)) * n} of {tg.size} trim points from {parts.dir}/")
+        notice(f"resuming: reusing {(len(lines) - len(tasks)) * n} of {tg.size} trim points from {parts.dir}/" + RESUME_NOTE)
         bar.update(len(lines) - len(tasks))
     _run(executor, trim_line, tasks, bar, store)
     errors = _in_order(errors, tg, tg.nodes())
@@ -942,7 +966,7 @@ def _dynamics(spec, ref, who, names, h0, trim, hold, executor, parts, progress):
             guess = {k: trim[k].reshape(tg.size, -1)[j] for k in "xuyz"}
             tasks.append((i, (ref, p, h0, guess, spec.dt, spec.differences, spec.perturbation)))
     if len(tasks) < dg.size:
-        notice(f"resuming: reusing {dg.size - len(tasks)} of {dg.size} dynamics points from {parts.dir}/")
+        notice(f"resuming: reusing {dg.size - len(tasks)} of {dg.size} dynamics points from {parts.dir}/" + RESUME_NOTE)
         bar.update(dg.size - len(tasks))
 
     def store(i, r):

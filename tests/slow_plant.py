@@ -5,7 +5,7 @@ import time
 
 import numpy as np
 
-from models.linear import LinearPlant
+from models.linear import DEFAULT, LinearPlant
 
 CALLS = {"trim": 0}
 #: levels at which every FailingPlant's trims fail too (a plant bug that is fixed later)
@@ -57,3 +57,35 @@ class FailingPlant(LinearPlant):
         if float(env[0]) in self.jacobian_levels and np.any(np.asarray(h) != 0):
             raise KeyError("health map missing")
         return super().evaluate(x, u, h, env)
+
+
+class UnsteadyPlant(LinearPlant):
+    """Its trims at ``unsteady_points`` ([level, power] pairs) return the input 5 % high (a trim
+    solver that stopped early), with the outputs evaluate gives there; ``swap_y`` returns the
+    trim's outputs in another order than evaluate's."""
+
+    def __init__(self, unsteady_points=(), swap_y=False):
+        super().__init__()
+        self.unsteady_points = [tuple(map(float, p)) for p in unsteady_points]
+        self.swap_y = bool(swap_y)
+
+    def parameters(self):
+        return {"unsteady_points": self.unsteady_points, "swap_y": self.swap_y}
+
+    def trim(self, p, h, env, guess=None):
+        t = super().trim(p, h, env, guess)
+        if tuple(map(float, p)) in self.unsteady_points:
+            t["u"] = t["u"] * 1.05
+            _, t["y"], t["z"] = self.evaluate(t["x"], t["u"], h, env)
+        if self.swap_y:
+            t["y"] = t["y"][::-1].copy()
+        return t
+
+
+class TwoSensorPlant(LinearPlant):
+    """The linear example plant with its first two sensors only."""
+    y_names = ("y1", "y2")
+    sensor_noise = {"y1": 0.002, "y2": 0.002}
+
+    def __init__(self):
+        super().__init__(C=DEFAULT["C"][:2], D=DEFAULT["D"][:2], M=DEFAULT["M"][:2], y0=DEFAULT["y0"][:2])

@@ -6,7 +6,7 @@ import pytest
 from scipy.linalg import solve_discrete_are
 from scipy.signal import cont2discrete
 
-from linearize.build import SerialExecutor, build, fill_line
+from linearize.build import RESUME_NOTE, SerialExecutor, build, fill_line
 from linearize.jacobian import zoh
 from linearize.kalman import predictor_gain
 from linearize.spec import BuildSpec, SpecError
@@ -234,8 +234,8 @@ def test_parts_are_reused_for_other_tuners_and_cleared_for_another_grid(tmp_path
     build(spec(), out, executor=SerialExecutor(), progress=False, log=quiet, keep_parts=True)
     build(spec("optimal"), out, executor=SerialExecutor(), progress=False, log=quiet, keep_parts=True)
     assert capsys.readouterr().err.splitlines() == [
-        f"resuming: reusing 12 of 12 trim points from {out}.parts/",
-        f"resuming: reusing 4 of 4 dynamics points from {out}.parts/"]
+        f"resuming: reusing 12 of 12 trim points from {out}.parts/" + RESUME_NOTE,
+        f"resuming: reusing 4 of 4 dynamics points from {out}.parts/" + RESUME_NOTE]
     other = BuildSpec.parse(SPEC.format(method="subset").replace("level = [0, 1, 2]", "level = [0, 1, 3]"),
                             "other.toml")
     db = build(other, out, executor=SerialExecutor(), progress=False, log=quiet)
