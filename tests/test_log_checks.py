@@ -292,7 +292,8 @@ def test_a_unit_mistake_on_the_schedule_sensor_fails_the_run(tmp_path, capsys):
 def test_a_log_just_below_the_grid_is_trusted():
     """A test cell on a high-pressure day logs -300 m pressure altitude: the operating point is
     clipped to the grid's 0 m (flagged, counted) and the estimates are as good (Fn RMS within 2 %
-    of the unshifted run's), so the samples stay trusted and pwl run does not fail the log."""
+    of the unshifted run's), so the samples stay trusted and pwl run does not fail the log. P2,
+    off the air data by a share growing with altitude, is kept (not taken from the air data)."""
     from pwl.demo_data import demo_paths
     from pwl.logs import read_log
 
@@ -306,6 +307,8 @@ def test_a_log_just_below_the_grid_is_trusted():
         b = est.run(low)
     c = b.counts()
     assert c["trim_outside"] > 10000 and c["updated"] == c["samples"]
+    # P2 3.5 % off the air data low, 4.4 % high: the altitude rather than P2, which is kept
+    assert json.loads(b.attrs["provenance"]["from_air_data"]) == []
     assert c["trusted"] == c["samples"] - c["settling"] == a.counts()["trusted"]
     rows = log.time >= log.time[0] + 120
 
