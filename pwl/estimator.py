@@ -17,7 +17,7 @@ from .grid import Axis, Grid
 from .h5io import atomic_h5
 from .logs import (Log, LogError, check_time, gap_starts, read_header, read_log, read_rows, resample, rows_missing,
                    sample_interval, time_gaps)
-from .runtime import (NEVER, SMALLEST_ROW, FLAG_AIR_DATA, FLAG_DYN_OUTSIDE, FLAG_HEALTH_HELD, FLAG_HELD_INPUT, FLAG_IMPLAUSIBLE, FLAG_NO_UPDATE, FLAG_NOT_STARTED,
+from .runtime import (FAR_OUTSIDE, NEVER, SMALLEST_ROW, FLAG_AIR_DATA, FLAG_DYN_OUTSIDE, FLAG_FAR_OUTSIDE, FLAG_HEALTH_HELD, FLAG_HELD_INPUT, FLAG_IMPLAUSIBLE, FLAG_NO_UPDATE, FLAG_NOT_STARTED,
                       FLAG_SETTLING, FLAG_STUCK, FLAG_TRIM_FILLED, FLAG_TRIM_OUTSIDE, HEALTH_HOLD_RATIO, MISFIT_SIGMAS, STUCK_AFTER,
                       STUCK_SIGMAS, Bias, Filter, Inputs, Outputs, PackedModel, blank_implausible, filter_loop, report, screen, spike_mask, burst_mask, state_layout)
 from .results import LOG_ATTRS, Result, append_rows, init_result_file
@@ -525,6 +525,7 @@ class Estimator:
         self.low_rate = {}       # channel held between its samples -> their period, s (_find_held)
         self.air_data = 0        # samples whose scheduling and inlet pressure disagree (_check_air_data)
         self.trim_filled = 0     # samples interpolated from trims the build filled (FLAG_TRIM_FILLED)
+        self.far_outside = 0     # samples far outside the trim grid (FLAG_FAR_OUTSIDE)
         self._lag_sums = np.zeros(6)   # the inlet pressure's lag behind the air data (air_data_lag)
         # ln(logged / air-data inlet pressure) below, between and above INLET_BANDS m (inlet_offset)
         self._inlet_hist = np.zeros((3, INLET_BINS.size - 1))
@@ -737,6 +738,7 @@ class Estimator:
         self._check_envelope(res.flags, res.time, path)
         self.trim_filled += int(np.count_nonzero(res.flags & FLAG_TRIM_FILLED))
         self._check_air_data(res.flags, arrays)
+        self._check_far_outside(res.flags, arrays)
         self._check_frozen_inputs(res.flags, res.time, arrays[0], arrays[2])
         corr = self.db.correction
         std = [1.0, 1.0, 1.0, corr.T_std if corr else 1.0, corr.P_std if corr else 1.0]
@@ -797,6 +799,21 @@ class Estimator:
                 for b in range(3):
                     r = ratio[band == b]
                     self._inlet_hist[b] += np.histogram(r[np.isfinite(r)], INLET_BINS)[0]
+
+    def _check_far_outside(self, flags, arrays) -> None:
+        """Flag FLAG_FAR_OUTSIDE on the samples whose operating point (:meth:`GainDatabase.operating_point`
+        of ``arrays`` as from :meth:`_split`) is farther outside the trim grid than
+        :data:`pwl.runtime.FAR_OUTSIDE` of an axis's span, and count them."""
+        _, _, S, TH, DE = arrays
+        db, n = self.db, len(flags)
+        with np.errstate(invalid="ignore", over="ignore"):
+            p = db.operating_point(S, np.ones(n) if TH is None else TH, np.ones(n) if DE is None else DE)
+            axes = db.trim_grid.axes
+            pt = p[:, [db.names["p"].index(a.name) for a in axes]]
+            lo, hi = np.array([a.values[0] for a in axes]), np.array([a.values[-1] for a in axes])
+            far = np.any((pt < lo - FAR_OUTSIDE * (hi - lo)) | (pt > hi + FAR_OUTSIDE * (hi - lo)), axis=1)
+        flags[far] |= FLAG_FAR_OUTSIDE
+        self.far_outside += int(np.count_nonzero(far))
 
     @property
     def air_data_lag(self) -> tuple[float, float]:
@@ -879,8 +896,10 @@ class Estimator:
             far = ", ".join(f"{a.name} {lo:g} .. {hi:g} (grid {a.values[0]:g} .. {a.values[-1]:g})"
                             for a, lo, hi in zip(axes, low, high) if lo < a.values[0] or hi > a.values[-1])
             how = "extrapolated from" if self.db.policy == "extrapolate" else "clipped to"
+            beyond = (f"; {self.far_outside} of them farther out than {FAR_OUTSIDE:.0%} of an axis's span, not "
+                      "trusted" if self.far_outside else "")
             warnings.warn(f"{path}: {k} of {n} samples outside the database's grid, {far}: the model there "
-                          f"is {how} the grid's edge (the farther out, the less its estimates hold); a "
+                          f"is {how} the grid's edge (the farther out, the less its estimates hold{beyond}); a "
                           "database built over the log's envelope fixes it", PwlWarning, stacklevel=4)
         k, cold, hot = self._day
         if k >= max(n, 1) / 100:

@@ -20,7 +20,7 @@ from .errors import PwlError, UsageError
 from .formats import RESULTS, check, stamp
 from .h5io import as_strings, atomic_h5, attr_str, check_seal, read_strings, write_strings
 from .logs import Log
-from .runtime import (FLAG_AIR_DATA, FLAG_DYN_OUTSIDE, FLAG_HEALTH, FLAG_HEALTH_HELD, FLAG_HELD_INPUT, FLAG_IMPLAUSIBLE,
+from .runtime import (FLAG_AIR_DATA, FLAG_DYN_OUTSIDE, FLAG_FAR_OUTSIDE, FLAG_HEALTH, FLAG_HEALTH_HELD, FLAG_HELD_INPUT, FLAG_IMPLAUSIBLE,
                       FLAG_MISFIT, FLAG_NO_UPDATE, FLAG_NOT_STARTED, FLAG_PARTIAL, FLAG_SETTLING, FLAG_STUCK,
                       FLAG_TRIM_FILLED, FLAG_TRIM_OUTSIDE)
 from .snapshots import Snapshots
@@ -34,7 +34,7 @@ FLAG_COUNTS = {"no_update": FLAG_NO_UPDATE, "partial": FLAG_PARTIAL, "held_input
                "not_started": FLAG_NOT_STARTED, "implausible": FLAG_IMPLAUSIBLE,
                "misfit": FLAG_MISFIT, "health_implausible": FLAG_HEALTH, "health_held": FLAG_HEALTH_HELD,
                "stuck": FLAG_STUCK, "settling": FLAG_SETTLING, "air_data": FLAG_AIR_DATA,
-               "trim_filled": FLAG_TRIM_FILLED}
+               "trim_filled": FLAG_TRIM_FILLED, "far_outside": FLAG_FAR_OUTSIDE}
 #: every key of :meth:`Result.counts`, in order
 COUNT_KEYS = ("samples", *FLAG_COUNTS, "updated", "trusted")
 
@@ -46,13 +46,14 @@ def trusted(flags: np.ndarray) -> np.ndarray:
     read Fn 30 % off on a tenth of its samples), health estimates in their plausible
     range, scheduling and inlet pressure in agreement (:mod:`pwl.airdata`), trims the build computed
     (not filled or extrapolated), and no misfit the update could not leave out (most sensors misfit:
-    the model does not explain the sample). Leaving the trim grid is not by itself
-    suspect (a test cell at -300 m pressure altitude is clipped to 0 m at no cost in accuracy:
-    Fn 0.234 % vs 0.233 % on the degraded demo flight); when it matters, the misfit and health
-    flags say so."""
+    the model does not explain the sample). Leaving the trim grid by a little is not suspect (a
+    test cell at -300 m pressure altitude is clipped to 0 m at no cost in accuracy: Fn 0.234 % vs
+    0.233 % on the degraded demo flight); farther than :data:`pwl.runtime.FAR_OUTSIDE` of an
+    axis's span it is (a user's plant 20 K below a grid of 250-320 K read a clean engine's turbine
+    9 points off with residuals small: the filter takes the clipped model's error into health)."""
     f = np.asarray(flags)
     bad = (f & (FLAG_NO_UPDATE | FLAG_NOT_STARTED | FLAG_HEALTH | FLAG_SETTLING | FLAG_HELD_INPUT
-                 | FLAG_AIR_DATA | FLAG_TRIM_FILLED)) != 0
+                 | FLAG_AIR_DATA | FLAG_TRIM_FILLED | FLAG_FAR_OUTSIDE)) != 0
     return ~bad & ~(((f & FLAG_MISFIT) != 0) & ((f & FLAG_PARTIAL) == 0))
 
 #: HDF5 filters of the outputs and flags. gzip (deflate) is in every HDF5 library, so every tool

@@ -256,7 +256,8 @@ FLAG_LABELS = (("updated", "updated"), ("trusted", "trusted"), ("no_update", "wi
                ("health_implausible", "implausible health"), ("health_held", "health held"), ("stuck", "stuck sensor"),
                ("trim_outside", "outside the trim grid"), ("dyn_outside", "outside the dynamics grid"),
                ("not_started", "before the first valid sample"), ("settling", "settling"),
-               ("air_data", "air data disagree"), ("trim_filled", "trims filled by the build"))
+               ("air_data", "air data disagree"), ("trim_filled", "trims filled by the build"),
+               ("far_outside", "far outside the trim grid"))
 
 
 def describe(counts: dict) -> str:
@@ -299,7 +300,7 @@ def too_few(counts: dict, min_updated: float) -> str:
         flagged = ", ".join(f"{label} {counts[k] / n:.0%}" for k, label in (
             ("air_data", "altitude, Mach and inlet pressure disagree"), ("held_input", "input held"),
             ("misfit", "misfit"), ("health_implausible", "implausible health"),
-            ("trim_outside", "outside the trim grid"), ("trim_filled", "trims the build filled"),
+            ("far_outside", "far outside the trim grid"), ("trim_filled", "trims the build filled"),
             ("settling", "within the filter's settling time")) if counts.get(k))
         why = (f"{good} of {n} samples trusted{after} ({flagged}: a unit mistake, a wrong or failed channel or the "
                "wrong database?)")
