@@ -11,7 +11,8 @@ import warnings
 
 import numpy as np
 
-from .airdata import INLET_BANDS, INLET_BINS, INLET_OFFSET, LAG_SIGMAS, LAG_WARN, altitude_slip, disagree, inlet_pressure, lag, lag_sums
+from .airdata import (INLET_BANDS, INLET_BINS, INLET_OFFSET, LAG_SIGMAS, LAG_WARN, altitude_slip, disagree, inlet_pressure,
+                      inlet_temperature, lag, lag_sums)
 from .database import AMBIENT_REACH, GainDatabase
 from .grid import Axis, Grid
 from .h5io import atomic_h5
@@ -344,6 +345,7 @@ class Estimator:
         self.failed: list[str] = []      # sensors failed for the last log (_failed_sensors): left out
         self._inlet_replaced = False     # the inlet pressure taken from the air data (_inlet_biased)
         self._blind: list = []          # (first, last) times without measurement updates (_second_opinions)
+        self._inlet_dead: list = []     # (theta or delta channel, first, last time) run as missing (_second_opinions)
         self.resample = resample
         zt = None
         if zones:
@@ -531,6 +533,7 @@ class Estimator:
         self._inlet_hist = np.zeros((3, INLET_BINS.size - 1))
         self.frozen = {}         # input -> [samples frozen while the engine moved, the value] (_check_frozen_inputs)
         self._frozen_spans = []  # their (first, last) times
+        self._inlet_frozen_spans = []   # (theta or delta channel, first, last time, value, move) (_check_frozen_inlet)
         self._logged = np.zeros(len(self.db.names["y"]), dtype=bool)   # sensors with a value, not NaN (_split)
         self._fit_rows, self._misfit_in = 0, {}   # samples where the model should fit, misfits there
         self._misfit_runs = np.zeros((2, len(self.db.names["y"])))   # longest misfit run, the run going on
@@ -740,6 +743,7 @@ class Estimator:
         self._check_air_data(res.flags, arrays)
         self._check_far_outside(res.flags, arrays)
         self._check_frozen_inputs(res.flags, res.time, arrays[0], arrays[2])
+        self._check_frozen_inlet(res.flags, res.time, arrays)
         corr = self.db.correction
         std = [1.0, 1.0, 1.0, corr.T_std if corr else 1.0, corr.P_std if corr else 1.0]
         for cols, a, sc in zip(self._columns(), arrays, std):
@@ -867,6 +871,40 @@ class Estimator:
                     got[0] += int(b - a)
                     got[1] = float(x[a])
                     self._frozen_spans.append((float(t[a]), float(t[b - 1])))
+
+    #: the least relative change of the inlet temperature or pressure that pressure altitude and
+    #: Mach make over a run of exact repeats for it to be a frozen inlet sensor (:meth:`_check_frozen_inlet`):
+    #: 1 %, about 3 K or 1 kPa at sea level; a quantised reading holds at a steady cruise or through
+    #: a throttle change, where neither moves
+    FROZEN_INLET = 0.01
+
+    def _check_frozen_inlet(self, flags, t, arrays) -> None:
+        """Flag FLAG_HELD_INPUT on the runs where the inlet temperature or pressure (theta, delta)
+        repeats one value exactly for the stuck detector's time or longer while pressure altitude
+        and Mach change it by :attr:`FROZEN_INLET` or more (the standard day's inlet temperature,
+        full-ram inlet pressure), and keep their spans: the log is run again with the channel
+        missing there, carried by the day as a dead one is (:meth:`_second_opinions`). T2 frozen
+        from the cruise on read fan efficiency -13 % and HPC flow -32 % in the descent, named
+        nowhere; T2 written 288.15 K all flight (a converter's fill value) fan efficiency +10 %."""
+        if self._air is None or self.pm.theta_channel is None:
+            return
+        ja, jm, ka, _ = self._air
+        _, _, S, TH, DE = arrays
+        alt, mach = S[:, ja] * ka, S[:, jm]
+        with np.errstate(invalid="ignore", over="ignore"):
+            expect = {0: np.log(inlet_temperature(alt, mach, 0.0)), 1: np.log(inlet_pressure(alt, mach))}
+        for k, (c, x) in enumerate(((self.pm.theta_channel, TH), (self.pm.delta_channel, DE))):
+            starts, stops = true_runs(np.concatenate([[False], (x[1:] == x[:-1]) & np.isfinite(x[1:])]))
+            for a, b in zip(starts - 1, stops):
+                if b - a < self._model.stuck_n:
+                    continue
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", RuntimeWarning)     # altitude or Mach missing throughout
+                    moved = np.nanmax(expect[k][a:b]) - np.nanmin(expect[k][a:b])
+                if moved >= self.FROZEN_INLET:
+                    flags[a:b] |= FLAG_HELD_INPUT
+                    value = float(x[a] * (self.db.correction.T_std if k == 0 else self.db.correction.P_std))
+                    self._inlet_frozen_spans.append((c, float(t[a]), float(t[b - 1]), value, float(np.expm1(moved))))
 
     def _typical(self, key):
         """Median of the values kept for ``key`` (:meth:`_checked`), per column."""
@@ -1012,6 +1050,8 @@ class Estimator:
         t = log.time[a:b]
         for t0, t1 in self._blind:        # an input frozen there: no measurement update
             Y[(t >= t0) & (t <= t1)] = np.nan
+        for c, t0, t1 in self._inlet_dead:     # an inlet sensor frozen there: missing (carried by the day)
+            (TH if c == pm.theta_channel else DE)[(t >= t0) & (t <= t1)] = np.nan
         return U, Y, S, TH, DE
 
     @property
@@ -1128,9 +1168,21 @@ class Estimator:
         (prediction only), so that the tuners keep what they knew before (Wf frozen for a minute of
         the degraded demo flight's descent: Nc and T48 misfit on a fifth of the flight after it,
         were dropped for the log, health held all flight)."""
-        self.failed, self._blind, self._inlet_replaced = [], [], False
+        self.failed, self._blind, self._inlet_replaced, self._inlet_dead = [], [], False, []
         self._readmit(False)
         out = once()
+        if self._inlet_frozen_spans:
+            self._inlet_dead = [f[:3] for f in self._inlet_frozen_spans]
+            for c in dict.fromkeys(f[0] for f in self._inlet_frozen_spans):
+                spans = [f for f in self._inlet_frozen_spans if f[0] == c]
+                _, t0, t1, v, moved = max(spans, key=lambda f: f[2] - f[1])
+                warnings.warn(f"{path}: {c!r} held {v:.6g} {self.channel_units.get(c, '')} exactly on "
+                              f"{sum(f[2] - f[1] for f in spans):.4g} s of the log (the longest from t = {t0:.6g} to "
+                              f"{t1:.6g} s) while pressure altitude and Mach moved it by {moved:.0%}: a frozen sensor "
+                              "or a fill value? Run again with it missing there (carried by the day, as a dead "
+                              "inlet sensor is); those samples are not trusted", PwlWarning, stacklevel=4)
+            self.reset()
+            out = once()
         if self._inlet_biased(path):
             self._inlet_replaced = True
             self.reset()

@@ -163,3 +163,31 @@ def test_an_inlet_pressure_off_the_air_data_over_the_log_is_taken_from_them(flig
     with h5py.File(tmp_path / "out" / "b.estimates.h5") as f:
         assert json.loads(f.attrs["from_air_data"]) == ["P2"]
     np.testing.assert_array_equal(Result.load(tmp_path / "out" / "b.estimates.h5").outputs["h_hat"], ref.outputs["h_hat"])
+
+
+def test_an_inlet_temperature_frozen_while_the_air_data_move_is_run_as_missing(flight):
+    """T2 written as its value at the top of the climb from there to the end of the demo flight
+    (a frozen word; a converter's fill value is the same): named in a warning, and estimated as
+    the same log with T2 missing there (carried by the day): equal outputs. Before, the descent
+    read fan efficiency -13 % and HPC flow -32 %, T2 named nowhere. A T2 that holds while
+    altitude and Mach do not move it (the clean flight's) is left alone."""
+    from pwl.errors import PwlWarning
+
+    log, seg = flight
+    ch = dict(log.channels)
+    ch["T2"] = ch["T2"].copy()
+    ch["T2"][seg.stop:] = ch["T2"][seg.stop]
+    frozen = Log(log.time, ch, dict(log.units), path="frozen")
+    ref_ch = dict(log.channels)
+    ref_ch["T2"] = np.where(np.arange(len(log)) >= seg.stop, np.nan, ref_ch["T2"])
+    ref = Estimator(DB).run(Log(log.time, ref_ch, dict(log.units)))
+    with pytest.warns(PwlWarning, match=r"frozen: 'T2' held [0-9.]+ K exactly on [0-9.]+ s of the log .* while "
+                                        r"pressure altitude and Mach moved it by \d+%"):
+        res = Estimator(DB).run(frozen)
+    for o in ref.outputs:
+        np.testing.assert_array_equal(res.outputs[o], ref.outputs[o], err_msg=o)
+    np.testing.assert_array_equal(res.flags, ref.flags)
+    assert np.all(res.flags[seg.stop:] & FLAG_HELD_INPUT)
+    clean = Estimator(DB)
+    clean.run(log)
+    assert not clean._inlet_frozen_spans
