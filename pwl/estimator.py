@@ -804,18 +804,26 @@ class Estimator:
                     r = ratio[band == b]
                     self._inlet_hist[b] += np.histogram(r[np.isfinite(r)], INLET_BINS)[0]
 
-    def _check_far_outside(self, flags, arrays) -> None:
-        """Flag FLAG_FAR_OUTSIDE on the samples whose operating point (:meth:`GainDatabase.operating_point`
-        of ``arrays`` as from :meth:`_split`) is farther outside the trim grid than
-        :data:`pwl.runtime.FAR_OUTSIDE` of an axis's span, and count them."""
-        _, _, S, TH, DE = arrays
-        db, n = self.db, len(flags)
+    def _far_outside(self, S, TH, DE) -> np.ndarray:
+        """(n,) bool: the samples whose operating point (:meth:`GainDatabase.operating_point` of
+        the kernel's schedule and theta/delta arrays, as from :meth:`_split`; False where one of
+        them is missing or implausible) is farther outside the trim grid than
+        :data:`pwl.runtime.FAR_OUTSIDE` of an axis's span."""
+        db, n = self.db, S.shape[0]
+        sched = np.column_stack([S, np.ones(n) if TH is None else TH, np.ones(n) if DE is None else DE])
+        lim = self._limits_of(2, 3, 4) if TH is not None else self._limits_of(2)
         with np.errstate(invalid="ignore", over="ignore"):
-            p = db.operating_point(S, np.ones(n) if TH is None else TH, np.ones(n) if DE is None else DE)
+            p = db.operating_point(S, sched[:, -2], sched[:, -1])
+            p[~np.all((sched[:, :lim.shape[1]] >= lim[0]) & (sched[:, :lim.shape[1]] <= lim[1]), axis=1)] = np.nan
             axes = db.trim_grid.axes
             pt = p[:, [db.names["p"].index(a.name) for a in axes]]
             lo, hi = np.array([a.values[0] for a in axes]), np.array([a.values[-1] for a in axes])
-            far = np.any((pt < lo - FAR_OUTSIDE * (hi - lo)) | (pt > hi + FAR_OUTSIDE * (hi - lo)), axis=1)
+            return np.any((pt < lo - FAR_OUTSIDE * (hi - lo)) | (pt > hi + FAR_OUTSIDE * (hi - lo)), axis=1)
+
+    def _check_far_outside(self, flags, arrays) -> None:
+        """Flag FLAG_FAR_OUTSIDE on the samples :meth:`_far_outside` finds, and count them."""
+        _, _, S, TH, DE = arrays
+        far = self._far_outside(S, TH, DE)
         flags[far] |= FLAG_FAR_OUTSIDE
         self.far_outside += int(np.count_nonzero(far))
 
@@ -1050,6 +1058,10 @@ class Estimator:
         t = log.time[a:b]
         for t0, t1 in self._blind:        # an input frozen there: no measurement update
             Y[(t >= t0) & (t <= t1)] = np.nan
+        # far outside the trim grid the clipped model is not the plant's: no measurement update
+        # there, so that the tuners do not take its error in (an engine start from 0 rpm left the
+        # filter off for 3 minutes of the taxi and take-off after it, two sensors failed for the log)
+        Y[self._far_outside(S, TH, DE)] = np.nan
         for c, t0, t1 in self._inlet_dead:     # an inlet sensor frozen there: missing (carried by the day)
             (TH if c == pm.theta_channel else DE)[(t >= t0) & (t <= t1)] = np.nan
         return U, Y, S, TH, DE

@@ -89,8 +89,9 @@ FLAG_TRIM_FILLED = 8192   # the trims were interpolated with weight on a node wh
                           # did not compute (filled or extrapolated from its line: /trim/status):
                           # not the plant's; not trusted
 FLAG_FAR_OUTSIDE = 16384  # the operating point is farther outside the trim grid than FAR_OUTSIDE of
-                          # an axis's span (set after the step loop by the estimator): the model
-                          # clipped or extrapolated that far is not the plant's; not trusted
+                          # an axis's span (set after the step loop by the estimator, which gives the
+                          # kernel no measurement there): the model clipped or extrapolated that far
+                          # is not the plant's; not trusted
 FAR_OUTSIDE = 0.1
 
 

@@ -12,7 +12,7 @@ from pwl.errors import PwlWarning
 from pwl.estimator import Estimator
 from pwl.h5io import file_digest
 from pwl.logs import Log, LogError, write_log
-from pwl.runtime import FLAG_FAR_OUTSIDE, FLAG_HELD_INPUT, FLAG_IMPLAUSIBLE
+from pwl.runtime import FLAG_FAR_OUTSIDE, FLAG_HELD_INPUT, FLAG_IMPLAUSIBLE, FLAG_NO_UPDATE
 from test_runtime import full_log, inputs, names_db, open_loop_y
 
 
@@ -31,7 +31,9 @@ def log_of(db, n=300):
     log = full_log(db, n=n)
     k = np.arange(n)
     log.channels["Tin"] = 288.15 * (1.0 + 0.025 * (1 + np.sin(2 * np.pi * k / 300)))
-    log.channels["Pin"] = 101325.0 * (0.9 + 0.1 * np.cos(2 * np.pi * k / 250))
+    # delta 0.95..1: the corrected schedule channel 2 y1 / delta stays within 10 % of its axis
+    # (50..100) of the grid (farther out the filter makes no update: FLAG_FAR_OUTSIDE)
+    log.channels["Pin"] = 101325.0 * (0.975 + 0.025 * np.cos(2 * np.pi * k / 250))
     log.units = {c: db.log_channels[c][0] for c in log.channels}
     return log
 
@@ -663,14 +665,16 @@ def test_a_snapshot_has_no_health_where_it_was_held():
 
 def test_samples_far_outside_the_trim_grid_are_flagged_and_not_trusted():
     """Samples whose operating point is farther outside the trim grid than 10 % of an axis's span
-    (pwl.runtime.FAR_OUTSIDE) are flagged FLAG_FAR_OUTSIDE, not trusted, counted and named; those
-    just outside are not. Against the schedule written out here: p1 = 2 y1 / delta on the axis
+    (pwl.runtime.FAR_OUTSIDE) are flagged FLAG_FAR_OUTSIDE, make no measurement update (the tuners
+    do not take the clipped model's error in), are not trusted, counted and named; those just
+    outside are not. Against the schedule written out here: p1 = 2 y1 / delta on the axis
     50..100. Before, a user's plant 20 K below its ambient axis read a clean engine's turbine 9
     points off, trusted, exit 0."""
     from pwl.results import trusted
 
     db = ranged_db()
     log = log_of(db, n=400)
+    log.channels["Pin"] = 101325.0 * (0.9 + 0.1 * np.cos(2 * np.pi * np.arange(400) / 250))
     est = Estimator(db)
     est.FAILED_SHARE = np.inf    # (a synthetic log the model does not explain: its sensors would fail)
     with pytest.warns(PwlWarning, match=r"samples outside the database's grid, .* \d+ of them farther out than "
@@ -681,5 +685,5 @@ def test_samples_far_outside_the_trim_grid_are_flagged_and_not_trusted():
     near = ((p1 > 100.0) & (p1 <= 105.0)) | ((p1 < 50.0) & (p1 >= 45.0))
     assert far.sum() > 20 and near.sum() > 20
     np.testing.assert_array_equal((res.flags & FLAG_FAR_OUTSIDE) != 0, far)
-    assert not trusted(res.flags)[far].any()
+    assert not trusted(res.flags)[far].any() and np.all(res.flags[far] & FLAG_NO_UPDATE)
     assert res.counts()["far_outside"] == far.sum()
