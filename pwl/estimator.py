@@ -799,10 +799,11 @@ class Estimator:
             if self.db.derives_inlet() and not self._inlet_replaced:
                 alt = S[use, ja] * ka
                 ratio = np.log(p2[use] / self.db.ambient.inlet_pressure(alt, S[use, jm]))
-                band = np.searchsorted(INLET_BANDS, alt)
-                for b in range(3):
-                    r = ratio[band == b]
-                    self._inlet_hist[b] += np.histogram(r[np.isfinite(r)], INLET_BINS)[0]
+                ok = np.isfinite(ratio) & (ratio >= INLET_BINS[0]) & (ratio < INLET_BINS[-1])
+                nb = INLET_BINS.size - 1
+                k = np.searchsorted(INLET_BANDS, alt[ok]) * nb + ((ratio[ok] - INLET_BINS[0]) / (
+                    INLET_BINS[1] - INLET_BINS[0])).astype(np.int64).clip(0, nb - 1)
+                self._inlet_hist += np.bincount(k, minlength=3 * nb).reshape(3, nb)
 
     def _far_outside(self, S, TH, DE) -> np.ndarray:
         """(n,) bool: the samples whose operating point (:meth:`GainDatabase.operating_point` of
@@ -821,11 +822,13 @@ class Estimator:
             return np.any((pt < lo - FAR_OUTSIDE * (hi - lo)) | (pt > hi + FAR_OUTSIDE * (hi - lo)), axis=1)
 
     def _check_far_outside(self, flags, arrays) -> None:
-        """Flag FLAG_FAR_OUTSIDE on the samples :meth:`_far_outside` finds, and count them."""
+        """Flag FLAG_FAR_OUTSIDE on the samples :meth:`_far_outside` finds among those outside the
+        trim grid (FLAG_TRIM_OUTSIDE), and count them."""
         _, _, S, TH, DE = arrays
-        far = self._far_outside(S, TH, DE)
+        out = np.flatnonzero(flags & FLAG_TRIM_OUTSIDE)
+        far = out[self._far_outside(S[out], None if TH is None else TH[out], None if DE is None else DE[out])]
         flags[far] |= FLAG_FAR_OUTSIDE
-        self.far_outside += int(np.count_nonzero(far))
+        self.far_outside += int(far.size)
 
     @property
     def air_data_lag(self) -> tuple[float, float]:
