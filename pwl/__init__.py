@@ -7,7 +7,7 @@ The public face, importable from ``pwl`` directly::
 Names are loaded on first use, so ``import pwl`` stays light. pwl imports numpy, numba, h5py
 (and pandas to read CSV/Parquet logs); never ``linearize`` or ``models``.
 """
-__version__ = "0.7.7"
+__version__ = "0.8.0"
 
 from . import kernel_cache as _kernel_cache
 
