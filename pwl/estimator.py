@@ -16,7 +16,7 @@ from .airdata import (INLET_BANDS, INLET_BINS, INLET_OFFSET, LAG_SIGMAS, LAG_WAR
 from .database import AMBIENT_REACH, GainDatabase
 from .grid import Axis, Grid
 from .h5io import atomic_h5
-from .logs import (Log, LogError, check_time, gap_starts, read_header, read_log, read_rows, resample, rows_missing,
+from .logs import (Log, LogError, case_twin, check_time, gap_starts, read_header, read_log, read_rows, resample, rows_missing,
                    sample_interval, time_gaps)
 from .runtime import (FAR_OUTSIDE, NEVER, SMALLEST_ROW, FLAG_AIR_DATA, FLAG_DYN_OUTSIDE, FLAG_FAR_OUTSIDE, FLAG_HEALTH_HELD, FLAG_HELD_INPUT, FLAG_IMPLAUSIBLE, FLAG_NO_UPDATE, FLAG_NOT_STARTED,
                       FLAG_SETTLING, FLAG_STUCK, FLAG_TRIM_FILLED, FLAG_TRIM_OUTSIDE, HEALTH_HOLD_RATIO, MISFIT_SIGMAS, STUCK_AFTER,
@@ -725,6 +725,8 @@ class Estimator:
             what = f"{'sensor' if one else 'sensors'} {names} NaN on all {len(log)} samples (dead for the whole log?)"
         else:
             text = [log.attrs["left_out"][c] for c in absent if c in log.attrs.get("left_out", {})]
+            text += [f"{t!r} differs in case only: rename the column, or map it with a channel map"
+                     for c in absent if (t := case_twin(log.channels or log.units, c))]
             what = f"no {names} channel{''.join(f' ({t})' for t in text)}"
         warnings.warn(f"{log.path}: {what}: run without {'that sensor' if one else 'those sensors'} (missing on "
                       "every sample" + ("" if dead else "; a channel map renames a channel logged under another name")

@@ -99,8 +99,8 @@ class Log:
                     continue
                 if name in self.attrs.get("left_out", {}):
                     raise LogError(self.attrs["left_out"][name])
-                like = [c for c in self.channels if c.casefold() == name.casefold()]
-                hint = (f"; {like[0]!r} differs in case only: rename the column, or map it with a channel map"
+                like = case_twin(self.channels, name)
+                hint = (f"; {like!r} differs in case only: rename the column, or map it with a channel map"
                         if like else "")
                 raise LogError(f"{self.path}: channel {name!r} is missing "
                                f"(log has: {', '.join(sorted(self.channels))}){hint}")
@@ -275,7 +275,8 @@ def read_header(path) -> Log:
     Returns
     -------
     Log
-        ``time`` (n,) s, ``units`` of every channel, ``attrs``; ``channels`` empty.
+        ``time`` (n,) s (converted from the unit of /time's ``unit`` attribute, if any: ms, min, ...),
+        ``units`` of every channel, ``attrs``; ``channels`` empty.
 
     Raises
     ------
@@ -297,6 +298,13 @@ def read_header(path) -> Log:
             if "time" not in f or "channels" not in f:
                 raise LogError(f"{path}: /time or /channels is missing")
             time = np.asarray(f["time"][()], dtype=np.float64)
+            unit = attr_str(f["time"], "unit", "") or "s"     # a writer that stored it in another unit
+            if unit != "s":
+                try:
+                    scale, offset = converter(unit, "s", f"{path}: /time")
+                except UnitError as e:
+                    raise LogError(str(e)) from None
+                time = time * scale + offset
             units = {}
             for k, d in f["channels"].items():
                 if d.shape != time.shape:
@@ -305,6 +313,11 @@ def read_header(path) -> Log:
             attrs = {k: attr_str(f, k) for k in f.attrs if k not in ("format", "format_version")}
     check_time(path, time)
     return Log(time, {}, units, attrs=attrs, path=path)
+
+
+def case_twin(channels, name: str) -> str | None:
+    """The channel among ``channels`` whose name differs from ``name`` in case only, else None."""
+    return next((c for c in channels if c != name and c.casefold() == name.casefold()), None)
 
 
 def sample_interval(time) -> float:

@@ -361,7 +361,8 @@ def test_a_slow_log_updates_only_on_its_samples():
 def test_a_log_without_a_sensor_channel_runs_as_that_sensor_dead(tmp_path):
     """A sensed output the log lacks altogether (an engine without that sensor) runs as a sensor
     missing on every sample, with a warning naming it; the result equals the run of the log
-    with that channel all NaN, in memory and through the chunked file run. A scheduling channel
+    with that channel all NaN, in memory and through the chunked file run; a column of it under
+    another case is named in the warning. A scheduling channel
     (y1 here, also a sensor) or an input cannot be done without."""
     from pwl.errors import PwlWarning
     from pwl.results import Result
@@ -377,6 +378,11 @@ def test_a_log_without_a_sensor_channel_runs_as_that_sensor_dead(tmp_path):
     np.testing.assert_array_equal(res.outputs["h_hat"], ref.outputs["h_hat"])
     np.testing.assert_array_equal(res.flags, ref.flags)
     assert json.loads(res.attrs["provenance"]["absent_channels"]) == ["y2"]
+    # a column of the sensor under another case is named with the warning (it is not read)
+    cased = Log(log.time, {("Y2" if k == "y2" else k): v for k, v in log.channels.items()},
+                {("Y2" if k == "y2" else k): u for k, u in log.units.items()}, path="cased.h5")
+    with pytest.warns(PwlWarning, match=r"cased.h5: no 'y2' channel \('Y2' differs in case only: rename the column"):
+        np.testing.assert_array_equal(Estimator(db).run(cased).outputs["h_hat"], ref.outputs["h_hat"])
     write_log(tmp_path / "lacks.h5", Log(lacks.time, lacks.channels, {k: u for k, u in log.units.items() if k != "y2"}))
     with pytest.warns(PwlWarning, match="no 'y2' channel"):
         Estimator(db).run_file(tmp_path / "lacks.h5", tmp_path / "res.h5", chunk=77)

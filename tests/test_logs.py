@@ -139,3 +139,24 @@ def test_units_in_other_cases_and_spellings_are_known_and_unknown_ones_are_not()
     assert known("psig") is None and known("furlongs") is None   # gauge pressure needs ambient
     with pytest.raises(UnitError, match="'psig' is not a unit pwl knows"):
         converter("psig", "Pa", "x")
+
+
+def test_an_hdf5_time_in_another_unit_is_read_in_seconds(tmp_path):
+    """A flight log written by another tool with /time in ms and its 'unit' attribute saying so
+    reads in seconds (before: refused as 1000 times the database's step, with a CSV header's
+    advice); an unknown unit there is named."""
+    log = sample_log()
+    with h5py.File(tmp_path / "ms.h5", "w") as f:
+        f.attrs.update({"format": "pwl-flight-log", "format_version": 1})
+        d = f.create_dataset("time", data=log.time * 1000.0)
+        d.attrs["unit"] = "ms"
+        g = f.create_group("channels")
+        for k, v in log.channels.items():
+            g.create_dataset(k, data=v).attrs["unit"] = log.units[k]
+    back = read_log(tmp_path / "ms.h5")
+    np.testing.assert_allclose(back.time, log.time, rtol=1e-15, atol=1e-15)
+    np.testing.assert_array_equal(back.channels["Nf"], log.channels["Nf"])
+    with h5py.File(tmp_path / "ms.h5", "a") as f:
+        f["time"].attrs["unit"] = "fortnights"
+    with pytest.raises(LogError, match=r"ms.h5: /time.*fortnights"):
+        read_log(tmp_path / "ms.h5")
