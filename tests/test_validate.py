@@ -33,6 +33,7 @@ from linearize.tuners import (envelope_mse, envelope_mses, fd_gradient, optimal_
 from models.linear import LinearPlant
 from pwl.cli import main
 from pwl.database import GainDatabase
+from pwl.errors import PwlWarning
 
 ROOT = os.path.join(os.path.dirname(__file__), "..")
 DB = os.path.join(ROOT, "data", "turbofan_demo.h5")
@@ -544,3 +545,17 @@ def test_divergence_from_a_stable_trim_and_of_a_discrete_plant():
     msg = V.divergence("a=1", np.array([0.5, -1.25]), True, 3.0, 1, 0.05)
     assert msg.endswith("the plant is open-loop unstable at a=1 (its Jacobian there has the multiplier "
                         "-1.25 per step, magnitude 1.25 > 1): no transient to compare")
+
+
+def test_the_steady_state_check_skips_and_names_points_where_the_model_runs_away(unstable_db):
+    """On the open-loop-unstable plant (a mode at +150 1/s) the model run from the plant's trim
+    stays there only to rounding, which the mode grows: a point where it runs away (no steady
+    state to compare) is skipped with why, not reported as an error of 1e9 %; the others compare
+    exactly (the model is this linear plant). The runtime's advice for logged data ('logged in
+    degF?', a sensor failed for the log) is not printed for the plant's own simulation."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        errs, pts, failed = V.steady_state(unstable_db, n=6)
+    assert failed and len(failed) + errs.shape[0] == 6 and np.abs(errs).max(initial=0.0) < 1e-6
+    assert all(e == "the model did not settle in 3000 steps (open-loop unstable there?)" for _, e in failed)
+    assert not [w for w in caught if issubclass(w.category, PwlWarning)]
