@@ -410,8 +410,15 @@ def check_time(path, time) -> None:
     if back.size:
         k = back[0] + 1
         same = int(np.count_nonzero(step == 0))
-        hint = (f"; it repeats on {same} of {step.size} rows: time stamps coarser than the sampling? Export "
-                "the time with sub-second resolution" if same > 0.1 * step.size else "")
+        if same > 0.1 * step.size:
+            hint = (f"; it repeats on {same} of {step.size} rows: time stamps coarser than the sampling? Export "
+                    "the time with sub-second resolution")
+        elif back.size == 1 and time[k] < time[0] + 0.1 * (time[k - 1] - time[0]):
+            hint = "; it starts again there: two logs joined? One log is one flight: split the file"
+        elif back.size > 1:
+            hint = f" (and on {back.size - 1} more of its {step.size} steps: {same} repeat, {back.size - same} go back)"
+        else:
+            hint = ""
         raise LogError(f"{path}: time does not increase at sample {k} ({float(time[k - 1])!r} -> "
                        f"{float(time[k])!r}){hint}")
 

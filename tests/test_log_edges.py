@@ -142,6 +142,13 @@ def test_messages_for_coarse_time_stamps_and_channel_names_in_another_case():
         check_time("x.csv", np.repeat(np.arange(10.0), 4))          # 1 s stamps on a 0.25 s log
     with pytest.raises(LogError, match=r"time does not increase at sample 2 \(1.0 -> 0.5\)$"):
         check_time("x.csv", np.array([0.0, 1.0, 0.5, 2.0]))           # no hint for a time going back
+    t = np.arange(40.0)
+    t[[1, 20]], t[30] = t[[0, 19]], 28.5                             # two rows repeat, one goes back
+    with pytest.raises(LogError, match=r"at sample 1 \(0.0 -> 0.0\) \(and on 2 more of its 39 steps: 2 repeat, 1 "
+                                       r"go back\)$"):
+        check_time("x.csv", t)
+    with pytest.raises(LogError, match=r"at sample 5 \(4.0 -> 0.0\); it starts again there: two logs joined\?"):
+        check_time("x.csv", np.r_[np.arange(5.0), np.arange(5.0)])
     log = Log(np.arange(3.0), {"wf": np.ones(3)}, {"wf": ""})
     with pytest.raises(LogError, match=r"channel 'Wf' is missing \(log has: wf\); 'wf' differs in case only"):
         log.require(["Wf"])
