@@ -344,6 +344,7 @@ class Estimator:
         self.channel_map = channel_map   # logs read from files go through it (pwl.channel_map)
         self.failed: list[str] = []      # sensors failed for the last log (_failed_sensors): left out
         self._inlet_replaced = False     # the inlet pressure taken from the air data (_inlet_biased)
+        self._logged_delta = None        # its logged values on the rows last split, for the snapshots
         self._blind: list = []          # (first, last) times without measurement updates (_second_opinions)
         self._inlet_dead: list = []     # (theta or delta channel, first, last time) run as missing (_second_opinions)
         self.resample = resample
@@ -1033,6 +1034,8 @@ class Estimator:
         elif self.inlet_from_air_data(log):
             TD = np.column_stack([take([pm.theta_channel])[:, 0], db.inlet_from_air_data(S)])
             TD /= [db.correction.T_std, db.correction.P_std]
+            if self._inlet_replaced:      # the logged one, biased, for the snapshots (the fleet diagnosis names it)
+                self._logged_delta = take([pm.delta_channel])[a - wide.start: b - wide.start, 0]
         else:
             TD = take([pm.theta_channel, pm.delta_channel]) / [db.correction.T_std, db.correction.P_std]
         cols = np.hstack([U, S, TD])
@@ -1332,6 +1335,8 @@ class Estimator:
                self._limits, dropped, np.empty(one.size, dtype=np.int64))
         self._count_channels(-dropped)     # the rows dropped are not the log's samples
         res = Result(res.time[keep], {o: v[keep] for o, v in res.outputs.items()}, res.flags[keep], res.names)
+        if self._logged_delta is not None and self._logged_delta.size == keep.size:
+            self._logged_delta = self._logged_delta[keep]
         return res, tuple(None if a is None else a[keep] for a in arrays), rs.log
 
     #: relative difference between a log's sample interval and the database's dt that is refused
@@ -1469,6 +1474,8 @@ class Estimator:
             with np.errstate(over="ignore"):    # a spike (pwl.estimator._SPIKE) overflows: inf
                 cols[pm.theta_channel] = th * db.correction.T_std
                 cols[pm.delta_channel] = de * db.correction.P_std
+            if self._inlet_replaced and self._logged_delta is not None and self._logged_delta.size == n:
+                cols[pm.delta_channel] = self._logged_delta     # as logged (biased): _inlet_biased
         raw = np.column_stack([cols[c] for c in acc.channels])
         lo = np.array([self.ranges.get(c, (-np.inf, np.inf))[0] for c in acc.channels])
         hi = np.array([self.ranges.get(c, (-np.inf, np.inf))[1] for c in acc.channels])

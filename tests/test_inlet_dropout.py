@@ -126,7 +126,8 @@ def test_a_stream_without_the_inlet_pressure_runs_on_the_build_recovery(flight):
 def test_an_inlet_pressure_off_the_air_data_over_the_log_is_taken_from_them(flight, tmp_path, capsys, scale):
     """P2 logged 1.5 % low or 4 % high for a whole demo flight (a biased probe, inside the air
     data's 6 % per-sample check: nothing flagged): named in a warning with its offset, and the log
-    estimated as the same log without P2 is (from the air data): equal outputs. Before, the 1.5 %
+    estimated as the same log without P2 is (from the air data): equal outputs; its snapshots keep
+    P2 as logged, for the fleet diagnosis. Before, the 1.5 %
     read HPT efficiency 1.9 points off, trusted, exit 0. Through ``pwl run`` (chunked) too; the
     clean flight is not touched."""
     import json
@@ -155,14 +156,24 @@ def test_an_inlet_pressure_off_the_air_data_over_the_log_is_taken_from_them(flig
     np.testing.assert_array_equal(res.flags, ref.flags)
     assert json.loads(res.attrs["provenance"]["from_air_data"]) == ["P2"]
     clean = Estimator(DB)
-    clean.run(log)
+    cs = clean.run(log).snapshots
+    # the snapshots keep P2 as logged (the fleet diagnosis names the bias): the clean flight's,
+    # scaled, over the same windows; every other channel as the clean flight's
+    bs = res.snapshots
+    np.testing.assert_array_equal(bs.t0, cs.t0)
+    j = bs.channels.index("P2")
+    np.testing.assert_allclose(bs.mean[:, j], cs.mean[:, j] * scale, rtol=1e-12)
+    others = [k for k in range(len(bs.channels)) if k != j]
+    np.testing.assert_allclose(bs.mean[:, others], cs.mean[:, others], rtol=1e-12)
     assert abs(clean.inlet_offset) < 1e-3 and not clean._inlet_replaced
     write_log(tmp_path / "b.h5", biased)
     assert main(["run", DB, str(tmp_path / "b.h5"), "-o", str(tmp_path / "out"), "-j", "1"]) == 0
     assert "'P2' reads" in capsys.readouterr().err
     with h5py.File(tmp_path / "out" / "b.estimates.h5") as f:
         assert json.loads(f.attrs["from_air_data"]) == ["P2"]
-    np.testing.assert_array_equal(Result.load(tmp_path / "out" / "b.estimates.h5").outputs["h_hat"], ref.outputs["h_hat"])
+    back = Result.load(tmp_path / "out" / "b.estimates.h5")
+    np.testing.assert_array_equal(back.outputs["h_hat"], ref.outputs["h_hat"])
+    np.testing.assert_allclose(back.snapshots.mean, bs.mean, rtol=1e-12)
 
 
 def test_an_inlet_temperature_frozen_while_the_air_data_move_is_run_as_missing(flight):
