@@ -158,6 +158,10 @@ def trim_line(ref, points, h, dt: float, span: float = 0.0):
             env = plant.environment(p)
             t = plant.trim(np.asarray(p, dtype=np.float64), h, env, guess=guess)
             vals = {k: np.asarray(t[k], dtype=np.float64).reshape(-1) for k in "xuyz"}
+            for k, v in vals.items():
+                if v.size != out[k].shape[1]:
+                    raise ValueError(f"trim returned {v.size} {k} values, the plant names {out[k].shape[1]} "
+                                     f"({', '.join(proto.names(plant, k))})")
             bad = [k for k, v in vals.items() if not np.all(np.isfinite(v))]
             if bad:
                 raise ValueError(f"trim returned non-finite values in {', '.join(bad)}")

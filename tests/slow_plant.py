@@ -62,15 +62,15 @@ class FailingPlant(LinearPlant):
 class UnsteadyPlant(LinearPlant):
     """Its trims at ``unsteady_points`` ([level, power] pairs) return the input 5 % high (a trim
     solver that stopped early), with the outputs evaluate gives there; ``swap_y`` returns the
-    trim's outputs in another order than evaluate's."""
+    trim's outputs in another order than evaluate's, ``short_y`` one output short."""
 
-    def __init__(self, unsteady_points=(), swap_y=False):
+    def __init__(self, unsteady_points=(), swap_y=False, short_y=False):
         super().__init__()
         self.unsteady_points = [tuple(map(float, p)) for p in unsteady_points]
-        self.swap_y = bool(swap_y)
+        self.swap_y, self.short_y = bool(swap_y), bool(short_y)
 
     def parameters(self):
-        return {"unsteady_points": self.unsteady_points, "swap_y": self.swap_y}
+        return {"unsteady_points": self.unsteady_points, "swap_y": self.swap_y, "short_y": self.short_y}
 
     def trim(self, p, h, env, guess=None):
         t = super().trim(p, h, env, guess)
@@ -79,6 +79,8 @@ class UnsteadyPlant(LinearPlant):
             _, t["y"], t["z"] = self.evaluate(t["x"], t["u"], h, env)
         if self.swap_y:
             t["y"] = t["y"][::-1].copy()
+        if self.short_y:
+            t["y"] = t["y"][:-1]
         return t
 
 

@@ -474,8 +474,8 @@ def test_a_trim_that_is_not_the_plants_steady_state_is_a_failed_point(tmp_path):
     their value in a step of dt by its own evaluate) fails there, named, and the point is filled
     along its power line: for this linear plant the fill is the true trim (to 1e-12, against a
     build of the plant without the fault). Outputs in another order than evaluate's fail every
-    point. Before, both were stored as trims: a user's plant with a 5 % input error read a clean
-    engine 21 % off."""
+    point, as do outputs one short (named, not a numpy broadcast error). Before, the first two
+    were stored as trims: a user's plant with a 5 % input error read a clean engine 21 % off."""
     text = spec_text().replace("slow_plant:FailingPlant", "slow_plant:UnsteadyPlant")
     clean = serial_build(text, tmp_path / "clean.h5")
     db = serial_build(text.replace("parameters = {}", "parameters = {unsteady_points = [[1, 0.5]]}"),
@@ -487,6 +487,8 @@ def test_a_trim_that_is_not_the_plants_steady_state_is_a_failed_point(tmp_path):
         np.testing.assert_allclose(db.trim[k], clean.trim[k], rtol=1e-12, atol=1e-12)
     with pytest.raises(BuildError, match=r"every trim failed .* not a steady state: output 'y3' is 10 - in the trim, 15 - by "):
         serial_build(text.replace("parameters = {}", "parameters = {swap_y = true}"), tmp_path / "s.h5")
+    with pytest.raises(BuildError, match=r"every trim failed .* trim returned 2 y values, the plant names 3 \(y1, y2, y3\)"):
+        serial_build(text.replace("parameters = {}", "parameters = {short_y = true}"), tmp_path / "b.h5")
 
 
 def test_more_tuners_than_sensors_is_refused_before_any_trim(tmp_path):

@@ -557,5 +557,5 @@ def test_the_steady_state_check_skips_and_names_points_where_the_model_runs_away
         warnings.simplefilter("always")
         errs, pts, failed = V.steady_state(unstable_db, n=6)
     assert failed and len(failed) + errs.shape[0] == 6 and np.abs(errs).max(initial=0.0) < 1e-6
-    assert all(e == "the model did not settle in 3000 steps (open-loop unstable there?)" for _, e in failed)
+    assert all(e == "the model ran away in 3000 steps (open-loop unstable there?)" for _, e in failed)
     assert not [w for w in caught if issubclass(w.category, PwlWarning)]

@@ -158,10 +158,10 @@ def point_checks(args, db, plant, names, days):
                 kinds[kind].append(errs)
                 envelope.append((day, pts, errs))
             else:
-                bad.append(f"{check}: no point to compare at (the plant's trim failed or the model did not settle "
+                bad.append(f"{check}: no point to compare at (the plant's trim failed or the model ran away "
                            f"at every one of the {n} points)")
             for p, e in failed:
-                what = "skipped" if e.startswith("the model did not settle") else "plant trim failed"
+                what = "skipped" if e.startswith("the model ran away") else "plant trim failed"
                 print(f"  ({what} at {np.round(p, 4).tolist()}: {e})")
     return bad, kinds, envelope
 
