@@ -30,7 +30,16 @@ def run(args) -> int:
         raise OutputPathError(f"{args.output}: the file exists and is not an HDF5 file (a gain database): "
                               "give another output name or delete it first")
     spec = BuildSpec.load(args.spec)
-    db = build(spec, args.output, executor=SerialExecutor() if args.serial else None,
-               workers=args.workers, progress=not args.quiet, keep_parts=args.keep_parts)
+    try:
+        db = build(spec, args.output, executor=SerialExecutor() if args.serial else None,
+                   workers=args.workers, progress=not args.quiet, keep_parts=args.keep_parts)
+    except BaseException:
+        parts = f"{args.output}.parts"
+        kept = [f for f in os.listdir(parts) if f != "build-key"] if os.path.isdir(parts) else []
+        if kept:
+            import sys
+            print(f"partial results of {len(kept)} task(s) kept in {parts}/: the same command resumes from them; "
+                  "remove the folder to start over", file=sys.stderr)
+        raise
     print(db.summary())
     return 0
