@@ -21,6 +21,7 @@ def run(args) -> int:
     from linearize.build import SerialExecutor, build
     from linearize.spec import BuildSpec
 
+    from ..errors import PwlError
     from .output import OutputPathError, check_output
 
     if args.workers is not None and args.workers < 1:
@@ -33,13 +34,17 @@ def run(args) -> int:
     try:
         db = build(spec, args.output, executor=SerialExecutor() if args.serial else None,
                    workers=args.workers, progress=not args.quiet, keep_parts=args.keep_parts)
-    except BaseException:
+    except (PwlError, KeyboardInterrupt) as e:
         parts = f"{args.output}.parts"
         kept = [f for f in os.listdir(parts) if f != "build-key"] if os.path.isdir(parts) else []
         if kept:
-            import sys
-            print(f"partial results of {len(kept)} task(s) kept in {parts}/: the same command resumes from them; "
-                  "remove the folder to start over", file=sys.stderr)
+            note = (f"partial results of {len(kept)} task(s) kept in {parts}/: the same command resumes from them; "
+                    "remove the folder to start over")
+            if isinstance(e, KeyboardInterrupt):
+                import sys
+                print(note, file=sys.stderr)
+            else:                  # one line: the error's own
+                e.args = (f"{e}; {note}",) + e.args[1:]
         raise
     print(db.summary())
     return 0
