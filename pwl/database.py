@@ -753,7 +753,8 @@ class GainDatabase:
         lines.append(f"  dynamics: {int((self.dyn_status == 0).sum())} computed, "
                      f"{int((self.dyn_status != 0).sum())} replaced by nearest")
         lines.append(f"  kalman gains: {int((self.kalman_status == 0).sum())} computed, "
-                     f"{int((self.kalman_status != 0).sum())} replaced by nearest")
+                     f"{int((self.kalman_status != 0).sum())} replaced by nearest; settling time "
+                     f"{self.settling_time():.3g} s (3 time constants of the slowest error dynamics)")
         if "K_out" in self.kalman:
             none = [n for j, n in enumerate(self.names["y"]) if (self.kalman["out_status"][j] == OUT_NONE).all()]
             lines.append(f"  sensor-out gains: for {self.n('y') - len(none)} of {self.n('y')} sensors"

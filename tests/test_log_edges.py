@@ -273,3 +273,25 @@ def test_an_engine_start_in_the_log_does_not_cost_the_flight():
     assert far[:m].sum() > m // 2 and far[-m:].sum() > m // 2 and not trusted(res.flags)[far].any()
     a, b = ref.snapshots.outputs["h_hat"], res.snapshots.outputs["h_hat"]
     assert a.shape == b.shape and np.abs(a - b).max() < 1e-3
+
+
+def test_pwl_run_takes_the_settling_time(tmp_path, capsys):
+    """``pwl run --settle 5`` flags the first ceil(5 / dt) samples after the filter's start
+    settling (the default: the database's 27 s), records it in the results' mode, and a rerun
+    with another settling time computes again (not skipped as done)."""
+    import h5py
+
+    log = read_log(LOGS[1])
+    n = 20000
+    write_log(tmp_path / "f.h5", Log(log.time[:n], {c: v[:n] for c, v in log.channels.items()}, log.units))
+    assert main(["run", DB, str(tmp_path / "f.h5"), "-o", str(tmp_path / "a"), "-j", "1", "--settle", "5"]) == 0
+    res = Result.load(tmp_path / "a" / "f.estimates.h5")
+    settling = np.flatnonzero(res.flags & FLAG_SETTLING)
+    started = np.flatnonzero((res.flags & FLAG_NOT_STARTED) == 0)[0]
+    np.testing.assert_array_equal(settling, started + np.arange(int(np.ceil(5.0 / GainDatabase.open(DB).dt))))
+    with h5py.File(tmp_path / "a" / "f.estimates.h5") as f:
+        assert "+settle:5" in f.attrs["mode"]
+    assert main(["run", DB, str(tmp_path / "f.h5"), "-o", str(tmp_path / "a"), "-j", "1"]) == 0
+    assert np.count_nonzero(Result.load(tmp_path / "a" / "f.estimates.h5").flags & FLAG_SETTLING) == int(
+        np.ceil(Estimator(DB).settle / GainDatabase.open(DB).dt))
+    capsys.readouterr()

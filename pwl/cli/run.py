@@ -68,6 +68,11 @@ def add_arguments(p):
                    help="inputs that may legitimately hold one value exactly while altitude, Mach or the "
                         "engine move (variable geometry at a stop, a closed bleed valve): never flagged as a "
                         "frozen word or a meter at the end of its range (input held); default: none")
+    p.add_argument("--settle", type=float, default=None, metavar="SECONDS",
+                   help="the filter's settling time: samples this long after its start (or after an outage "
+                        "longer than it) are flagged settling and not trusted (default: 3 time constants of "
+                        "the database's slowest error dynamics, `pwl info`; a slow plant's 10-minute logs may "
+                        "need less)")
     p.add_argument("--health-hold", type=float, default=HEALTH_HOLD_RATIO, metavar="RATIO",
                    help="hold the health estimates while a sensor is out without which their "
                         "standard deviation grows more than RATIO times (default %(default)g; inf: never)")
@@ -144,7 +149,7 @@ def run(args) -> int:
     db = GainDatabase.open(args.database)  # fail early, with the named error, on a bad database
     mode = run_mode(args)
     checks = {"misfit_sigmas": args.misfit_sigmas, "stuck_after": args.stuck_after,
-              "health_hold": args.health_hold, "may_hold": args.may_hold}
+              "health_hold": args.health_hold, "may_hold": args.may_hold, "settle": args.settle}
     est = Estimator(db, mode, channel_map=args.channel_map, **checks)   # and on options it cannot serve
     select_outputs(est.names, args.outputs, where="--outputs")
     check_every(args.every)
