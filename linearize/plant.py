@@ -176,24 +176,30 @@ def check_steady(plant, t: dict, h: np.ndarray, env: np.ndarray, dt: float) -> N
     f, y, z = plant.evaluate(x, u, h, env)
     f = np.asarray(f, dtype=np.float64).reshape(-1)
     move = f - x if getattr(plant, "time", "continuous") == "discrete" else f * dt
-    rel = np.abs(move) / np.maximum(np.abs(x), 1e-9)
-    if rel.size and not rel.max() <= STEADY_TOLERANCE:
+
+    def worst(k, d, ref):
+        """(name, unit, index, share) of the kind-k channel whose difference d is the largest
+        share of its value ref, None when every one is within STEADY_TOLERANCE."""
+        rel = np.abs(d) / np.maximum(np.abs(ref), 1e-9)
+        if not rel.size or rel.max() <= STEADY_TOLERANCE:
+            return None
         i = int(np.argmax(rel))
-        n, unit = names(plant, "x")[i], plant.units.get(names(plant, "x")[i], "")
+        return names(plant, k)[i], plant.units.get(names(plant, k)[i], ""), i, rel[i]
+
+    if (w := worst("x", move, x)) is not None:
+        n, unit, i, rel = w
         raise ValueError(f"not a steady state: state {n!r} (trim value {x[i]:.6g} {unit}) moves {move[i]:.4g} {unit} "
-                         f"in a step of {dt:g} s by the plant's evaluate ({rel[i]:.2g} of its value; at most "
+                         f"in a step of {dt:g} s by the plant's evaluate ({rel:.2g} of its value; at most "
                          f"{STEADY_TOLERANCE:g})")
     for k, v in (("y", y), ("z", z)):
         v = np.asarray(v, dtype=np.float64).reshape(-1)
         ref = np.asarray(t[k], dtype=np.float64).reshape(-1)
         if v.shape != ref.shape:
             raise ValueError(f"the plant's evaluate gives {v.size} {k} values at the trim, the trim {ref.size}")
-        rel = np.abs(v - ref) / np.maximum(np.abs(ref), 1e-9)
-        if rel.size and not rel.max() <= STEADY_TOLERANCE:
-            i = int(np.argmax(rel))
-            n, unit = names(plant, k)[i], plant.units.get(names(plant, k)[i], "")
+        if (w := worst(k, v - ref, ref)) is not None:
+            n, unit, i, rel = w
             raise ValueError(f"not a steady state: output {n!r} is {ref[i]:.6g} {unit} in the trim, {v[i]:.6g} {unit} "
-                             f"by the plant's evaluate at the trim's states and inputs ({rel[i]:.2g} of its value; at "
+                             f"by the plant's evaluate at the trim's states and inputs ({rel:.2g} of its value; at "
                              f"most {STEADY_TOLERANCE:g}): a trim that stopped early, outputs in another order?")
 
 

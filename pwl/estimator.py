@@ -193,6 +193,13 @@ def interpolate_held(a: np.ndarray, periods: dict[int, float]) -> None:
         x[r] = val[s] + frac * (val[s + 1] - val[s])
 
 
+def repeat_runs(x: np.ndarray, n: float) -> list[tuple[int, int]]:
+    """(a, b) of every run of ``x`` (rows,) holding one value exactly on rows a..b-1 (its first
+    value, then its repeats) for ``n`` rows or more; NaN never repeats."""
+    starts, stops = true_runs(np.concatenate([[False], x[1:] == x[:-1]]))
+    return [(int(a), int(b)) for a, b in zip(starts - 1, stops) if b - a >= n]
+
+
 def true_runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(starts, stops) of the runs of True in the bool vector ``mask``: mask[starts[i]:stops[i]]."""
     edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(np.int8), [0]])))
@@ -872,10 +879,7 @@ class Estimator:
             S = np.where((S >= lim[0]) & (S <= lim[1]), S, np.nan)      # held (spikes, implausible): no move
         for j, (c, n) in enumerate(zip(self.db.names["u"], self._hold_n)):
             x = U[:, j]
-            starts, stops = true_runs(np.concatenate([[False], x[1:] == x[:-1]]))
-            for a, b in zip(starts - 1, stops):      # a run: its first value and its repeats
-                if b - a < n:
-                    continue
+            for a, b in repeat_runs(x, n):
                 with np.errstate(invalid="ignore"), warnings.catch_warnings():
                     warnings.simplefilter("ignore", RuntimeWarning)     # a column held all along
                     moved = np.nanmax(S[a:b], axis=0) - np.nanmin(S[a:b], axis=0) > span
@@ -908,10 +912,7 @@ class Estimator:
         with np.errstate(invalid="ignore", over="ignore"):
             expect = {0: np.log(inlet_temperature(alt, mach, 0.0)), 1: np.log(inlet_pressure(alt, mach))}
         for k, (c, x) in enumerate(((self.pm.theta_channel, TH), (self.pm.delta_channel, DE))):
-            starts, stops = true_runs(np.concatenate([[False], (x[1:] == x[:-1]) & np.isfinite(x[1:])]))
-            for a, b in zip(starts - 1, stops):
-                if b - a < self._model.stuck_n:
-                    continue
+            for a, b in repeat_runs(x, self._model.stuck_n):
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore", RuntimeWarning)     # altitude or Mach missing throughout
                     moved = np.nanmax(expect[k][a:b]) - np.nanmin(expect[k][a:b])
