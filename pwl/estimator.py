@@ -57,14 +57,20 @@ LOW_RATE_GAP = 1.0
 #: a channel written with sample-and-hold (each sample of a 1-8 Hz word repeated on the rows of a
 #: 66 Hz export until the next one) is one whose value changes at HELD_CHANGES rows or more, nine
 #: in ten of them (HELD_SHARE) within HELD_JITTER rows of a regular lattice of 2 rows or more and at
-#: most LOW_RATE_GAP seconds (fitted: 1 Hz on a 66.7 Hz grid changes after 66 or 67 rows), where
-#: samples changing at random rows could not have fitted it (HELD_CHANCE): not a channel that
-#: changes on most rows, a constant or frozen one, nor a quantised one at rest, whose changes
-#: come at irregular intervals. Held channels are found on a log's first HELD_ROWS rows (a run
-#: in chunks finds the same ones as a whole run)
+#: most LOW_RATE_GAP seconds (fitted: 1 Hz on a 66.7 Hz grid changes after 66 or 67 rows), or,
+#: for a recorder whose words come with a jitter (a bus sampled asynchronously: 1 Hz words after
+#: 57-77 rows), nine in ten of the gaps between them within HELD_SPREAD of a whole number of
+#: periods, where samples changing at random rows could not have fitted it (HELD_CHANCE): not a
+#: channel that changes on most rows, a constant or frozen one, nor a quantised one at rest,
+#: whose changes come at irregular intervals. Held channels are found on a log's first HELD_ROWS
+#: rows (a run in chunks finds the same ones as a whole run)
 HELD_CHANGES = 20
 HELD_SHARE = 0.9
 HELD_JITTER = 0.6
+HELD_SPREAD = 0.15
+#: a held sensor's rows between two samples whose line may be off by more than HELD_BEND of its
+#: noise standard deviations are left out of the update (:func:`interpolate_held`)
+HELD_BEND = 3.0
 HELD_CHANCE = 1e-6
 HELD_ROWS = 1 << 16
 
@@ -102,18 +108,25 @@ def hold_low_rate(a: np.ndarray, max_rows: int) -> dict[int, int]:
     return held
 
 
-def _lattice(new: np.ndarray) -> tuple[float, int]:
-    """(period, how many of them lie on it) of the regular lattice fitted to the rows ``new``
-    (sorted, at least two: where samples start): the period from their gaps of one to three
-    periods (longer gaps: samples that repeated a value), then by least squares, rows ~ phase +
-    period * index, over all of them and again over those within :data:`HELD_JITTER` of it."""
-    d = np.diff(new).astype(np.float64)
+def _gap_period(d: np.ndarray) -> float:
+    """The period (rows) of samples whose starts are ``d`` (float, at least one) rows apart: from
+    the gaps of one to three periods (longer gaps: samples that repeated a value)."""
     med = float(np.median(d))
     p = float(d[d <= 1.5 * med].mean())         # one period: 66 or 67 rows at 1 Hz on 66.7 Hz
     for _ in range(2):
         m = np.maximum(np.rint(d / p), 1.0)
         few = m <= 3
         p = float(d[few].sum() / m[few].sum())
+    return p
+
+
+def _lattice(new: np.ndarray) -> tuple[float, int]:
+    """(period, how many of them lie on it) of the regular lattice fitted to the rows ``new``
+    (sorted, at least two: where samples start): the period from their gaps of one to three
+    periods (longer gaps: samples that repeated a value), then by least squares, rows ~ phase +
+    period * index, over all of them and again over those within :data:`HELD_JITTER` of it."""
+    d = np.diff(new).astype(np.float64)
+    p = _gap_period(d)
     m = np.concatenate([[0.0], np.cumsum(np.maximum(np.rint(d / p), 1.0))])
     on = np.ones(new.size, dtype=bool)
     for _ in range(2):
@@ -141,12 +154,14 @@ def held_period(x: np.ndarray, max_rows: float) -> float:
     if not 2.0 <= np.median(np.diff(new)) <= max_rows + 1.0:
         return 0.0
     p, on = _lattice(new)
-    if not 2.0 <= p <= max_rows + 0.5:
-        return 0.0
     chance = min(1.0, 2.0 * HELD_JITTER / p)    # of a change at a random row to fall that close
-    if on < HELD_SHARE * new.size or on * np.log(chance) > np.log(HELD_CHANCE):
-        return 0.0
-    return p
+    if not (on >= HELD_SHARE * new.size and on * np.log(chance) <= np.log(HELD_CHANCE)):
+        d = np.diff(new).astype(np.float64)     # not on one lattice: gaps of whole periods?
+        p = _gap_period(d)
+        on = np.count_nonzero(np.abs(d - p * np.maximum(np.rint(d / p), 1.0)) <= HELD_SPREAD * p)
+        if on < HELD_SHARE * d.size or on * np.log(2.0 * HELD_SPREAD) > np.log(HELD_CHANCE):
+            return 0.0
+    return p if 2.0 <= p <= max_rows + 0.5 else 0.0
 
 
 def held_channels(a, max_rows: float) -> dict[int, tuple[float, int]]:
@@ -166,7 +181,7 @@ def held_channels(a, max_rows: float) -> dict[int, tuple[float, int]]:
     return held
 
 
-def interpolate_held(a: np.ndarray, periods: dict[int, float]) -> None:
+def interpolate_held(a: np.ndarray, periods: dict[int, float], tol: dict[int, float] | None = None) -> None:
     """In place: every column j of ``a`` (n, k) in ``periods`` (its period in rows), written with
     sample-and-hold, takes on each row the value linearly between the sample before and the
     sample after it, rather than the last sample's: a sample starts where a new value does, and a
@@ -174,7 +189,14 @@ def interpolate_held(a: np.ndarray, periods: dict[int, float]) -> None:
     spans its last period. Held, a value was up to a period late and every row a new measurement
     of it: in the take-off's spool-up Ps30 held every 64 rows read up to 35 % low, misfit, was
     left out and stayed out (the health held without it), in a probe fleet for the whole log in
-    19 of 48 logs. Rows not finite or :data:`_SPIKE` stay as they are and give no value."""
+    19 of 48 logs. Rows not finite or :data:`_SPIKE` stay as they are and give no value.
+
+    ``tol`` (column -> share of its value): where the samples bend so much that the line between
+    two of them may be off by more than that (a quarter of the larger second difference at its
+    ends: the chord's error over a corner), the rows between them are NaN (missing: the filter
+    updates from the other sensors there). Interpolated through the throttle chop of the descent,
+    four sensors held at 1 Hz put thrust 5 % off on samples taken as trusted."""
+    tol = tol or {}
     for j, p in periods.items():
         x = a[:, j]
         rows = np.flatnonzero(np.isfinite(x) & (x != _SPIKE))
@@ -191,6 +213,10 @@ def interpolate_held(a: np.ndarray, periods: dict[int, float]) -> None:
         r, s = rows[inner], seg[inner]
         frac = np.clip((r - start[s]) / (at[s + 1] - start[s]), 0.0, 1.0)
         x[r] = val[s] + frac * (val[s + 1] - val[s])
+        if j in tol and val.size > 2:
+            bend = np.abs(np.concatenate([[0.0], np.diff(val, 2), [0.0]]))
+            off = np.maximum(bend[:-1], bend[1:]) / 4.0 > tol[j] * np.abs(val[:-1])    # per gap between samples
+            x[r[off[s] & (r != at[s])]] = np.nan                                      # not the samples
 
 
 def repeat_runs(x: np.ndarray, n: float) -> list[tuple[int, int]]:
@@ -382,7 +408,7 @@ class Estimator:
                 raise UsageError(f"{name} {value}: must be {want}")
         self._checks = {"hold": (health_hold, HEALTH_HOLD_RATIO), "misfit": (misfit_sigmas, MISFIT_SIGMAS),
                         "stuck": (stuck_after, STUCK_AFTER), "settle": (self.settle, default_settle)}   # (value, default)
-        sd = self._sensor_sd()
+        self._sd = sd = self._sensor_sd()
         stuck_n = min(np.ceil(stuck_after / self.db.dt), 2.0 ** 62)
         # a log whose sensors misfit longer than the filter settles is run again with them used
         # after so long (_second_opinions, pwl.runtime.FLAG_MISFIT)
@@ -1056,7 +1082,8 @@ class Estimator:
         cols[np.isinf(cols)] = _SPIKE          # implausible, as screen() counts and names them (not missing)
         Y[np.isinf(Y)] = _SPIKE
         interpolate_held(cols, {j: p for j, (p, _) in held_cols.items()})
-        interpolate_held(Y, {j: p for j, (p, _) in held_y.items()})
+        interpolate_held(Y, {j: p for j, (p, _) in held_y.items()},
+                         {j: HELD_BEND * self._sd[j] for j in held_y})
         cols = cols[a - wide.start: b - wide.start]
         U, S = np.ascontiguousarray(cols[:, :U.shape[1]]), np.ascontiguousarray(cols[:, U.shape[1]:-2])
         TH, DE = (np.ascontiguousarray(cols[:, -2]), np.ascontiguousarray(cols[:, -1])) \
