@@ -777,7 +777,7 @@ class Estimator:
         self._check_envelope(res.flags, res.time, path)
         self.trim_filled += int(np.count_nonzero(res.flags & FLAG_TRIM_FILLED))
         self._check_air_data(res.flags, arrays)
-        self._check_far_outside(res.flags, arrays)
+        self.far_outside += int(np.count_nonzero(res.flags & FLAG_FAR_OUTSIDE))
         self._check_frozen_inputs(res.flags, res.time, arrays[0], arrays[2])
         self._check_frozen_inlet(res.flags, res.time, arrays)
         corr = self.db.correction
@@ -840,31 +840,6 @@ class Estimator:
                 k = np.searchsorted(INLET_BANDS, alt[ok]) * nb + ((ratio[ok] - INLET_BINS[0]) / (
                     INLET_BINS[1] - INLET_BINS[0])).astype(np.int64).clip(0, nb - 1)
                 self._inlet_hist += np.bincount(k, minlength=3 * nb).reshape(3, nb)
-
-    def _far_outside(self, S, TH, DE) -> np.ndarray:
-        """(n,) bool: the samples whose operating point (:meth:`GainDatabase.operating_point` of
-        the kernel's schedule and theta/delta arrays, as from :meth:`_split`; False where one of
-        them is missing or implausible) is farther outside the trim grid than
-        :data:`pwl.runtime.FAR_OUTSIDE` of an axis's span."""
-        db, n = self.db, S.shape[0]
-        sched = np.column_stack([S, np.ones(n) if TH is None else TH, np.ones(n) if DE is None else DE])
-        lim = self._limits_of(2, 3, 4) if TH is not None else self._limits_of(2)
-        with np.errstate(invalid="ignore", over="ignore"):
-            p = db.operating_point(S, sched[:, -2], sched[:, -1])
-            p[~np.all((sched[:, :lim.shape[1]] >= lim[0]) & (sched[:, :lim.shape[1]] <= lim[1]), axis=1)] = np.nan
-            axes = db.trim_grid.axes
-            pt = p[:, [db.names["p"].index(a.name) for a in axes]]
-            lo, hi = np.array([a.values[0] for a in axes]), np.array([a.values[-1] for a in axes])
-            return np.any((pt < lo - FAR_OUTSIDE * (hi - lo)) | (pt > hi + FAR_OUTSIDE * (hi - lo)), axis=1)
-
-    def _check_far_outside(self, flags, arrays) -> None:
-        """Flag FLAG_FAR_OUTSIDE on the samples :meth:`_far_outside` finds among those outside the
-        trim grid (FLAG_TRIM_OUTSIDE), and count them."""
-        _, _, S, TH, DE = arrays
-        out = np.flatnonzero(flags & FLAG_TRIM_OUTSIDE)
-        far = out[self._far_outside(S[out], None if TH is None else TH[out], None if DE is None else DE[out])]
-        flags[far] |= FLAG_FAR_OUTSIDE
-        self.far_outside += int(far.size)
 
     @property
     def air_data_lag(self) -> tuple[float, float]:
@@ -975,7 +950,8 @@ class Estimator:
             far = ", ".join(f"{a.name} {lo:g} .. {hi:g} (grid {a.values[0]:g} .. {a.values[-1]:g})"
                             for a, lo, hi in zip(axes, low, high) if lo < a.values[0] or hi > a.values[-1])
             how = "extrapolated from" if self.db.policy == "extrapolate" else "clipped to"
-            beyond = (f"; {self.far_outside} of them farther out than {FAR_OUTSIDE:.0%} of an axis's span, not "
+            beyond = (f"; {self.far_outside} samples run farther out than {FAR_OUTSIDE:.0%} of an axis's span "
+                      "(where a channel was missing: at its last value) made no measurement update and are not "
                       "trusted" if self.far_outside else "")
             warnings.warn(f"{path}: {k} of {n} samples outside the database's grid, {far}: the model there "
                           f"is {how} the grid's edge (the farther out, the less its estimates hold{beyond}); a "
@@ -1094,10 +1070,6 @@ class Estimator:
         t = log.time[a:b]
         for t0, t1 in self._blind:        # an input frozen there: no measurement update
             Y[(t >= t0) & (t <= t1)] = np.nan
-        # far outside the trim grid the clipped model is not the plant's: no measurement update
-        # there, so that the tuners do not take its error in (an engine start from 0 rpm left the
-        # filter off for 3 minutes of the taxi and take-off after it, two sensors failed for the log)
-        Y[self._far_outside(S, TH, DE)] = np.nan
         for c, t0, t1 in self._inlet_dead:     # an inlet sensor frozen there: missing (carried by the day)
             (TH if c == pm.theta_channel else DE)[(t >= t0) & (t <= t1)] = np.nan
         return U, Y, S, TH, DE

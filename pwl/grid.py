@@ -184,6 +184,18 @@ def find_interval(bp, lo, n, x, hint):
 
 
 @njit(cache=True, nogil=True, inline="always")
+def beyond(bp, off, point, share):
+    """True when ``point`` (float64, n) lies farther outside an axis of the grid (breakpoints
+    ``bp[off[j]:off[j + 1]]``) than ``share`` of that axis's span."""
+    for j in range(point.shape[0]):
+        lo, hi = bp[off[j]], bp[off[j + 1] - 1]
+        reach = share * (hi - lo)
+        if point[j] < lo - reach or point[j] > hi + reach:
+            return True
+    return False
+
+
+@njit(cache=True, nogil=True, inline="always")
 def locate(bp, off, point, extrapolate, idx, frac):
     """Bracket ``point`` (float64, n) on the grid; write cell indices and fractions in place.
 

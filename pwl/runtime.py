@@ -33,7 +33,7 @@ from .byref import fields, record
 from .covariance import correct, propagate_augmented
 from .database import AMBIENT_REACH, OUT_NONE, DatabaseError, GainDatabase
 from .errors import UsageError
-from .grid import locate
+from .grid import beyond, locate
 from .interp import corner_weights, interp_rows
 from .tables import table_predict, table_update
 
@@ -89,9 +89,9 @@ FLAG_TRIM_FILLED = 8192   # the trims were interpolated with weight on a node wh
                           # did not compute (filled or extrapolated from its line: /trim/status):
                           # not the plant's; not trusted
 FLAG_FAR_OUTSIDE = 16384  # the operating point is farther outside the trim grid than FAR_OUTSIDE of
-                          # an axis's span (set after the step loop by the estimator, which gives the
-                          # kernel no measurement there): the model clipped or extrapolated that far
-                          # is not the plant's; not trusted
+                          # an axis's span: no measurement update (the model clipped or extrapolated
+                          # that far is not the plant's: an engine start from 0 rpm updated from it
+                          # left the filter off for 3 minutes of the taxi and take-off); not trusted
 FAR_OUTSIDE = 0.1
 
 
@@ -566,9 +566,10 @@ def _stuck(model, state, o, ny, i, yk, s, others_change):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _predict_measurements(io, model, bias, state, out, w, k, oC, oD, ny, ty, cy, oyl):
+def _predict_measurements(io, model, bias, state, out, w, k, oC, oD, ny, ty, cy, oyl, blind):
     """y_hat = y_trim + C_a xm + D du (+ the bias tables), residuals (corrected units into w.res,
-    physical into the outputs; NaN for a missing sensor), the stuck detector and the misfit gate:
+    physical into the outputs; NaN for a missing sensor; every sensor missing when ``blind``: the
+    operating point far outside the trim grid), the stuck detector and the misfit gate:
     w.use[i] is False for a missing or stuck sensor and, while they are fewer than half the
     present ones, for a misfitting one (its residual is still reported) that has not misfit for
     more than model.readmit_n steps in a row (counted in the sensor record's MISFIT_ROW). Returns
@@ -586,12 +587,12 @@ def _predict_measurements(io, model, bias, state, out, w, k, oC, oD, ny, ty, cy,
     n_present = 0
     n_changed = 0
     for i in range(ny):
-        if np.isfinite(io.Y[k, i]):
+        if np.isfinite(io.Y[k, i]) and not blind:
             n_present += 1
             n_changed += io.Y[k, i] != state[_u(oyl + i)]
     for i in range(ny):
         s = w.yh[i] * _factor(model, w, cy + i)
-        yk = io.Y[k, i]
+        yk = np.nan if blind else io.Y[k, i]
         w.use[i] = np.isfinite(yk)      # NaN or +-Inf: no update from this sensor
         out.y_hat[k, i] = s
         if not w.use[i]:
@@ -795,6 +796,9 @@ def step_loop(kern):
             w.thde[0], w.thde[1] = state[oth], state[ode]
             correction_factors(model.ex, state[oth], state[ode], w.fac)
         f, m, d_out = _interpolate(io, model, grids, filt, w, k, osl, ost, cs)
+        blind = (f & FLAG_TRIM_OUTSIDE) != 0 and beyond(grids.t_bp, grids.t_off, w.pt, FAR_OUTSIDE)
+        if blind:
+            f |= FLAG_FAR_OUTSIDE
         flags |= f
         bm, b_out = 0, 0
         if nb > 0:
@@ -809,7 +813,7 @@ def step_loop(kern):
         if model.online:
             _online_propagate(model, filt, w, first, m, oA, oQ, nx, na)
         _time_update(model, state, w, oA, oB, nx, nu, nq, ou, tu)
-        f, n_miss, miss = _predict_measurements(io, model, bias, state, out, w, k, oC, oD, ny, ty, cy, oyl)
+        f, n_miss, miss = _predict_measurements(io, model, bias, state, out, w, k, oC, oD, ny, ty, cy, oyl, blind)
         part, how = _gain_choice(model, w, m, n_miss, miss, ny)
         flags |= f | part
         if nb > 0:  # the bias tables learn from complete updates only

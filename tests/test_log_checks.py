@@ -683,8 +683,9 @@ def test_samples_far_outside_the_trim_grid_are_flagged_and_not_trusted():
     log.channels["Pin"] = 101325.0 * (0.9 + 0.1 * np.cos(2 * np.pi * np.arange(400) / 250))
     est = Estimator(db)
     est.FAILED_SHARE = np.inf    # (a synthetic log the model does not explain: its sensors would fail)
-    with pytest.warns(PwlWarning, match=r"samples outside the database's grid, .* \d+ of them farther out than "
-                                        r"10% of an axis's span, not trusted"):
+    with pytest.warns(PwlWarning, match=r"samples outside the database's grid, .* \d+ samples run farther out "
+                                        r"than 10% of an axis's span .* made no measurement update and are not "
+                                        r"trusted"):
         res = est.run(log)
     p1 = 2.0 * log.channels["y1"] / (log.channels["Pin"] / 101325.0)
     far = (p1 > 100.0 + 5.0) | (p1 < 50.0 - 5.0)
@@ -693,3 +694,28 @@ def test_samples_far_outside_the_trim_grid_are_flagged_and_not_trusted():
     np.testing.assert_array_equal((res.flags & FLAG_FAR_OUTSIDE) != 0, far)
     assert not trusted(res.flags)[far].any() and np.all(res.flags[far] & FLAG_NO_UPDATE)
     assert res.counts()["far_outside"] == far.sum()
+
+
+def test_a_stream_flags_samples_far_outside_the_trim_grid_as_a_log_run_does():
+    """The kernel's step makes the test (pwl.grid.beyond), so a Stream fed the same samples one
+    at a time flags the same ones and makes no update there; its outputs equal the log run's
+    kernel (run_arrays on the log's arrays) bit for bit. Before, a stream had no such test: it
+    updated from the clipped model far outside the grid."""
+    from pwl.streaming import Stream
+
+    db = ranged_db()
+    log = log_of(db, n=400)
+    log.channels["Pin"] = 101325.0 * (0.9 + 0.1 * np.cos(2 * np.pi * np.arange(400) / 250))
+    p1 = 2.0 * log.channels["y1"] / (log.channels["Pin"] / 101325.0)
+    far = (p1 > 100.0 + 5.0) | (p1 < 50.0 - 5.0)
+    est = Estimator(db)
+    stream = Stream(est)
+    flags = np.array([stream.step(stream.row({c: log.channels[c][k] for c in stream.channels}))
+                      for k in range(len(log))])
+    np.testing.assert_array_equal((flags & FLAG_FAR_OUTSIDE) != 0, far)
+    assert np.all(flags[far] & FLAG_NO_UPDATE)
+    est.reset()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        batch = est.run_arrays(*est._split(log))
+    np.testing.assert_array_equal(flags, batch.flags)
