@@ -1052,3 +1052,29 @@ def test_a_channel_only_a_sensor_moves_tells_its_bias_from_a_recovery():
                 assert not any(r.detected for r in rows[17:])
             else:
                 assert all(r.detected and r.cls == "sensor:C" and r.onset == 15 for r in rows[15:]), (seed, case, m)
+
+
+def test_a_fit_does_not_depend_on_the_unit_of_a_sensor_column():
+    """A change of a component and a pressure sensor: the sensor's signature column per Pa is
+    1e-6 of the component's per unit of efficiency. The fit (statistic and estimate) equals the
+    one with that column per MPa (1e6 times larger, its estimate 1e6 times smaller) to 1e-9.
+    Before, the per-Pa fit was never made: the two columns read ill-conditioned (condition
+    number of the normal matrix above 1e12), and a recovery judged a Ps30 bias repaired."""
+    from pwl.fleet.diagnose import Hypothesis, _fit_changes
+
+    rng = np.random.default_rng(3)
+    n, m = 14, 6
+    t = np.arange(n, dtype=float)
+    S = rng.normal(size=(m, 3))
+    S[:, 2] *= 1e-6                                        # per Pa
+    D = 0.002 * rng.normal(size=(n, m))
+    D[7:] += S[:, [0, 2]] @ np.array([0.01, 3e4])
+    Wt = np.eye(m) / 0.002
+    cfg = DiagnosisConfig()
+    pa = _fit_changes(D, Wt, S, t, [7.0], "step", [Hypothesis("hpt+sensor:Ps30", [0, 2])], cfg, trend=True)
+    S_mpa = S.copy()
+    S_mpa[:, 2] *= 1e6
+    mpa = _fit_changes(D, Wt, S_mpa, t, [7.0], "step", [Hypothesis("hpt+sensor:Ps30", [0, 2])], cfg, trend=True)
+    assert len(pa) == len(mpa) == 1
+    assert pa[0][2] == pytest.approx(mpa[0][2], rel=1e-9)
+    np.testing.assert_allclose(pa[0][3], mpa[0][3] * [1.0, 1e6], rtol=1e-9)

@@ -27,8 +27,9 @@ def add_arguments(p):
 
     d = sub.add_parser("diagnose", help="detect, isolate and size faults from pwl run results",
                        description="detect, isolate and size faults from pwl run results, one row per "
-                                   "engine and flight (docs/diagnostics.md); unreadable results files "
-                                   "are skipped and named, and the exit status is then 1")
+                                   "engine and flight (docs/diagnostics.md); exit status 1 when an engine "
+                                   "has a fault at its latest flight (a finding, as for pwl trend) or an "
+                                   "unreadable results file was skipped (named)")
     d.add_argument("results", nargs="+",
                    help="results files or folders (walked recursively) of pwl run, or snapshot tables "
                         "(.csv, .tsv, .parquet, .xlsx: one row per steady snapshot, docs/diagnostics.md; they need "
@@ -287,7 +288,9 @@ def run_diagnose(args) -> int:
         what = f"{r.kind} {readable_detail(r.detail, units)}" + {
             "drift": " per flight", "wear": " per flight beyond the fleet's normal wear",
             "level": " against the fleet's median (off its fleet from its first flight)"}.get(r.kind, "")
-        if r.kind == "intermittent":
+        if r.kind == "stuck" and not r.detail:
+            what = "stuck (one value in every regime: read as missing)"
+        elif r.kind == "intermittent":
             what = f"intermittent (its bias came and went; when on {readable_detail(r.detail, units)} from its baseline)"
         elif r.kind == "erratic":
             what = (f"erratic (its readings scatter {r.detail.partition('=')[2]} times as much from flight to flight "
@@ -307,7 +310,7 @@ def run_diagnose(args) -> int:
         print(f"{len(rec)} recoveries (every efficiency up: a wash or a repair; diagnosed on a new baseline since):")
         for e, r in rec:
             print(f"  {e}: {r.cls} at flight {r.onset}, {readable_detail(r.detail, units)}")
-    return 1 if skipped else 0
+    return 1 if skipped or flagged else 0
 
 
 def run_score(args) -> int:

@@ -480,6 +480,9 @@ class EngineSeries:
     #: (n, m R) the snapshots' channel values as read (the database's units), for
     #: :func:`read_in_other_units`; None where not kept
     raw: np.ndarray | None = None
+    #: channels read as missing on a flight for one value in every regime (:func:`_stuck_across`):
+    #: (flight position, channel, value)
+    stuck: list[tuple] = field(default_factory=list)
 
 
 #: a channel more than this far (relative) from the model's value at its operating point is no
@@ -521,8 +524,47 @@ def engine_series(flights: list[FlightRecord], sig: Signatures, n_regimes: int) 
         if longest >= 0 and "h_hat" in s.outputs:
             H[i] = s.outputs["h_hat"][longest]
     names = [f"{c}@{reg}" for reg in range(R) for c in sig.channels]
+    stuck = _stuck_across(Y, sig.channels, R)
+    for i, c, _ in stuck:
+        cols = [reg * m + sig.channels.index(c) for reg in range(R)]
+        D[i, cols] = SE[i, cols] = np.nan
     return EngineSeries(flights[0].engine if flights else "", flights, names, list(sig.columns),
-                        D, SE, S, level, H, list(sig.db.names["h"]), list(sig.db.names["u"]), gross, Y)
+                        D, SE, S, level, H, list(sig.db.names["h"]), list(sig.db.names["u"]), gross, Y, stuck)
+
+
+def _stuck_across(Y: np.ndarray, channels: list[str], R: int) -> list[tuple]:
+    """(flight position, channel, value) of every channel whose snapshot value is one and the
+    same in two regimes or more of a flight (Y (n, m R), raw means, regimes stacked): a live
+    sensor reads idle and cruise hundreds of units apart, a stuck one (a thermocouple open, a
+    frozen bus word) not. Read as it was, T48 stuck at 950 K on seven flights read HPT, LPT and
+    fan changes on most of them."""
+    m, out = len(channels), []
+    for j, c in enumerate(channels):
+        v = Y[:, [reg * m + j for reg in range(R)]]
+        ok = np.isfinite(v)
+        for i in np.flatnonzero(ok.sum(axis=1) >= 2):
+            x = v[i, ok[i]]
+            if np.all(x == x[0]):
+                out.append((int(i), c, float(x[0])))
+    return out
+
+
+def stuck_note(series: list[EngineSeries]) -> list[str]:
+    """A line per channel read as missing for one value in every regime of a flight
+    (``EngineSeries.stuck``): how many flights, of which engines, from which flight, the value."""
+    by: dict[str, list] = {}
+    for es in series:
+        for i, c, v in es.stuck:
+            by.setdefault(c, []).append((es.engine, es.flights[i].label, v))
+    out = []
+    for c, hits in by.items():
+        engines = list(dict.fromkeys(h[0] for h in hits))
+        first = {e: next((h[1], h[2]) for h in hits if h[0] == e) for e in engines[:3]}
+        where = ", ".join(f"{e} from {lb} ({v:.6g})" for e, (lb, v) in first.items()) + (", ..." if len(engines) > 3 else "")
+        out.append(f"{c}: one value in every regime (idle and cruise alike) on {len(hits)} flight(s) of "
+                   f"{len(engines)} engine(s) ({where}): a stuck sensor; read as missing there, the flight's "
+                   f"row 'sensor:{c} stuck' unless another fault is found")
+    return out
 
 
 #: a value off the model by more than this (beyond the largest deviation a fault gives in the
@@ -1247,9 +1289,15 @@ def _fit_changes(D, Wt, S, t, taus, shape, bank, cfg, trend=False, steps=(), spr
         A = Sw[:, :, cols].transpose(0, 2, 1, 3)          # (K, hypotheses, m, rank)
         At = A.transpose(0, 1, 3, 2)
         GA = At @ A
-        w = np.linalg.eigvalsh(GA)                       # (its condition number below 1e12)
+        # conditioned with unit columns: a sensor's column is per raw unit (per Pa of a pressure:
+        # 1e-6 of a component's), and a component with a pressure sensor read ill-conditioned, so
+        # never fitted (a recovery judged every sensor fault before it repaired)
+        g = np.sqrt(np.einsum("...ii->...i", GA))
+        g = np.where(g > 0.0, g, 1.0)
+        gg = g[..., :, None] * g[..., None, :]
+        w = np.linalg.eigvalsh(GA / gg)                  # (its condition number below 1e12)
         ok = w[..., 0] > 1e-12 * w[..., -1]
-        Gi = np.linalg.inv(np.where(ok[..., None, None], GA, np.eye(GA.shape[-1])))
+        Gi = np.linalg.inv(np.where(ok[..., None, None], GA / gg, np.eye(GA.shape[-1]))) / gg
         b = (At @ v[:, None, :, None])[..., 0]
         th = (Gi @ b[..., None])[..., 0]
         T = np.sum(b * th, axis=-1)
@@ -1512,6 +1560,14 @@ def _sensor_part(dec, D, Wt, S, t, bank, cfg, known, n_tests, es, rowsok) -> Non
     if alone is None or T - alone < h.cost(cfg) - c.cost(cfg) or \
             stats.chi2.sf(T - alone, 1) * n_tests >= cfg.alpha or size < cfg.min_step:
         return
+    # nor what every component restored explains: an overhaul (every health parameter back to
+    # new) fitted two components with T30 2.9 K or Ps30 3 kPa off, a lasting false sensor fault
+    health = [i for i, n in enumerate(es.columns) if not n.startswith("sensor:")]
+    wide = _fit_changes(D, Wt, S, t, [float(dec.onset)], "step",
+                        [Hypothesis("", health), Hypothesis("", health + h.columns[-1:])], cfg, trend=cfg.wear,
+                        **_nuisance(known, dec.onset))
+    if len(wide) == 2 and stats.chi2.sf(wide[1][2] - wide[0][2], 1) * n_tests >= cfg.alpha:
+        return
     sc = np.array(sorted(score.values(), reverse=True))
     w = np.exp((sc - sc[0]) / 2.0)
     dec.detected, dec.kind, dec.status, dec.cls = 1, "step", "ok", es.columns[h.columns[-1]]
@@ -1566,6 +1622,22 @@ def _frozen(es: EngineSeries, k: int, base: int, sensor: str) -> bool:
             and np.isfinite(es.SE[k, i]) and np.isfinite(es.SE[base, i])]
     return bool(cols) and bool(np.all(es.SE[k, cols] <= 1e-3 * es.SE[base, cols])) \
         and bool(es.SE[base, cols].max() > 0.0)
+
+
+def _stuck_row(dec: Decision, es: EngineSeries, k: int, number: np.ndarray) -> None:
+    """Make ``dec`` (flight position k, no fault found without the channel) the row of a sensor
+    stuck there (:func:`_stuck_across`): ``sensor:<channel> stuck``, onset the first flight of its
+    run of stuck flights (no fit: ``detail`` empty; its value is in the warning, :func:`stuck_note`)."""
+    mine = [c for i, c, _ in es.stuck if i == k]
+    if not mine:
+        return
+    c = mine[0]
+    at = {i for i, c2, _ in es.stuck if c2 == c}
+    first = k
+    while first - 1 in at:
+        first -= 1
+    dec.detected, dec.status, dec.kind, dec.cls, dec.onset = 1, "ok", "stuck", f"sensor:{c}", int(number[first])
+    dec.confidence = 1.0
 
 
 def _nuisance(known: list, before: float = np.inf) -> dict:
@@ -1670,6 +1742,32 @@ def _calibrated(D, Sk, offsets, base: int) -> np.ndarray:
     for c, v in offsets:
         col = Sk[:, :, c]
         D = D - v * (col - col[:base].mean(axis=0))
+    return D
+
+
+def _steadied(D, Sk, t, Wt, found: list, columns: list[str]) -> np.ndarray:
+    """Deviations D (n, m) at flight numbers t (n,) less the part of each sensor offset of a step
+    found (``found``: Decisions; its raw-unit size in the fit of its ``detail``) that moves from
+    flight to flight after its onset: offset x (S_k - its mean over those flights) in its
+    signature column, Sk (n, m, ncol) each flight's signatures (as :func:`_calibrated` for an
+    offset from the first flight), where that leaves the flights after it steadier (whitening
+    Wt): a raw-unit offset is no constant share of a channel whose level moves with each
+    flight's operating point (Ps30 30 kPa high read 1.7-2.9 % at cruise from one flight to the
+    next, later tests found an HPT change in that scatter, whose 'recovery' then repaired the
+    bias), but a sensor reading a share off (a gain) is."""
+    def spread(x):
+        return float(np.sum(((x - x.mean(axis=0)) @ Wt.T) ** 2))
+    for f in found:
+        if f.kind != "step" or not f.detail:
+            continue
+        after = t >= f.onset
+        for name, v in (kv.split("=") for kv in f.detail.split()):
+            if name.startswith("sensor:") and name in columns and after.sum() >= 3:
+                col = Sk[after][:, :, columns.index(name)]
+                alt = D[after] - float(v) * (col - col.mean(axis=0))
+                if spread(alt) < spread(D[after]):
+                    D = D.copy()
+                    D[after] = alt
     return D
 
 
@@ -1991,6 +2089,7 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
                 offsets = _calibration(D, Wt, Sbar_all, t, bank, cfg, level.at(Sbar_all, idx), len(bank), es.columns)
             if offsets:
                 D = _calibrated(D, Sk, offsets, cfg.n_base + 1)
+            D = _steadied(D, Sk, t, Wt, [f for f in found if f.onset >= number[first]], es.columns)
             toggled = sorted({es.columns.index(c) for o, c in seen if o >= number[first]})
             Wfleet = Wt.copy()
             ratio = own_scatter(D, Wt, Sbar_all[:, toggled])
@@ -2132,6 +2231,8 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
         if not dec.detected and dec.status in ("ok", "cleared") and \
                 _erratic(dec, es, es.D[flown][:, idx], idx, number[flown], [c.onset for c in known], Sigma, cfg):
             dec.earlier = _earlier(dec, mine)
+        if not dec.detected and dec.status in ("ok", "cleared"):
+            _stuck_row(dec, es, k, number)
         rows.append(_standing(dec, mine) if dec.status == "cleared" and dec.earlier and dec.onset < dec.flight else dec)
     if own[0] > OWN_WARN:
         warnings.warn(PwlWarning(f"engine {es.engine}: judged against its own flight-to-flight scatter, "
@@ -2555,7 +2656,7 @@ def diagnose_fleet(records: list[FlightRecord], db: GainDatabase,
     series = [excluding(engine_series(v, sig, len(centers)), excluded.get(e, ()))
               for e, v in group_engines(records).items()]
     read_in_other_units(series, db.channel_units())
-    for line in gross_note(series, db.channel_units()):
+    for line in gross_note(series, db.channel_units()) + stuck_note(series):
         warnings.warn(PwlWarning(line), stacklevel=2)
     Sigma = noise_covariance(series, cfg.floor)
     from .trending import detail_units

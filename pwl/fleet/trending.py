@@ -150,6 +150,8 @@ class EngineTrend:
                     f"+- {100 * d.magnitude_std:.2f} %{'/flight' if rate else ''}")
             if d.kind == "erratic":
                 size = f"scatter {d.detail.partition('=')[2]} x its own before"
+            elif d.kind == "stuck" and not d.detail:
+                size = "one value in every regime (read as missing)"
             elif np.isfinite(d.bias):
                 size += f", bias {d.bias:+.4g} (sensor units)"
             lines.append(f"FAULT: {d.cls} ({_kind(d)} since flight {d.onset}), {size}, confidence "
