@@ -787,6 +787,17 @@ def test_flights_are_ordered_by_real_time_then_flight_index():
     assert "flight_index 1) before" in in_flight_order(back)[1]
     daily = [rec("2026-01-01", 0), rec("2026-01-01", 1), rec("2026-01-02", 2)]
     assert order(daily) == [0, 1, 2] and mixed_engines(daily) == []
+    # neither a time nor an index: by file name, and said so (day-first dates in the names sort
+    # wrong: before, without a word)
+    named = [rec("", -1, f"E1/{d}.h5") for d in ("05-02-2026", "28-01-2026", "12-02-2026")]
+    for i, r in enumerate(named):                 # three flights (not one sent three times)
+        r.snapshot = SimpleNamespace(**{**vars(r.snapshot), "mean": np.array([[i, 0.0]])})
+    recs, note = in_flight_order(named)
+    assert [r.source for r in recs] == ["E1/05-02-2026.h5", "E1/12-02-2026.h5", "E1/28-01-2026.h5"]
+    assert "ordered by file name" in note and "05-02-2026.h5 first, 28-01-2026.h5 last" in note
+    other = [FlightRecord("E2", r.order, r.source.replace("E1", "E2"), r.label, r.snapshot) for r in named]
+    notes = order_notes(named + other)
+    assert len(notes) == 1 and notes[0].startswith("2 engines (E1, E2): no flight has a flight_time")
     twice = daily + [rec("2026-01-02", 2, "E1/flight_2_v2.h5")]
     assert "E1/flight_2_v2.h5 and E1/flight_2.h5" in mixed_engines(twice)[0]
     assert [r.source for r in group_engines(twice)["E1"]][-2:] == ["E1/flight_2.h5", "E1/flight_2_v2.h5"]
@@ -1078,3 +1089,37 @@ def test_a_fit_does_not_depend_on_the_unit_of_a_sensor_column():
     assert len(pa) == len(mpa) == 1
     assert pa[0][2] == pytest.approx(mpa[0][2], rel=1e-9)
     np.testing.assert_allclose(pa[0][3], mpa[0][3] * [1.0, 1e6], rtol=1e-9)
+
+
+def test_a_sensor_noisier_within_its_snapshots_is_erratic():
+    """Standard errors of four sensors in two regimes over ten flights (scatter 2 %): T30's five
+    times larger from flight 6 is ``erratic`` from 6 on the latest two flights, its detail the
+    planted ratio within 10 %; twice as large is not; every sensor's five times as large on one
+    flight (a shorter window) is not; with the latest flight alone noisier, not yet."""
+    from types import SimpleNamespace
+
+    from pwl.fleet.diagnose import Decision, _noisier
+
+    rng = np.random.default_rng(5)
+    sensors = ["T24", "Ps30", "T30", "T48"]
+    channels = [f"{s}@{r}" for r in (0, 1) for s in sensors]
+    se = 1e-4 * (1.0 + 0.02 * rng.normal(size=(10, len(channels))))
+    idx, number, flown = np.arange(len(channels)), np.arange(10), np.arange(10)
+    t30 = [j for j, c in enumerate(channels) if c.startswith("T30")]
+
+    def judge(SE, upto=10):
+        dec = Decision("E1", upto - 1, "", "", "ok")
+        return _noisier(dec, SimpleNamespace(channels=channels, SE=SE), flown[:upto], idx, number, 4), dec
+
+    noisy = se.copy()
+    noisy[6:, t30] *= 5.0
+    found, dec = judge(noisy)
+    assert found and dec.cls == "sensor:T30" and dec.kind == "erratic" and dec.onset == 6
+    assert float(dec.detail.partition("=")[2]) == pytest.approx(5.0, rel=0.1)
+    assert not judge(noisy, upto=7)[0]                       # one noisier flight: not yet
+    twice = se.copy()
+    twice[6:, t30] *= 2.0
+    assert not judge(twice)[0]
+    short = se.copy()
+    short[8:] *= 5.0
+    assert not judge(short)[0]

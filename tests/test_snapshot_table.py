@@ -367,6 +367,29 @@ def test_a_channel_logged_in_degf_reads_missing_wherever_it_was(tmp_path, db, pl
         assert (a.detected, a.cls, a.kind, a.onset, a.missing) == (b.detected, b.cls, b.kind, b.onset, b.missing), (a, b)
 
 
+def test_two_engines_with_two_unit_mistakes_on_one_channel(tmp_path, db, plan, recwarn):
+    """T30 in degC on one healthy engine (40-60 % off in K: gross) and in degF on another (6-28 %
+    off, most under the 20 % of a gross value), both from flight 4: every one of those values
+    reads missing, each engine's unit named in the warning, and the rows are those of the table
+    with them blank. Before, the fleet's typical gross value (degC) set the one unit looked for:
+    the degF engine's values under 20 % read as a T30 step (a probe fleet of logs: FPR 5.2 %)."""
+    rows = table_rows(plan)
+    healthy = [plan.serial[i] for i, c in enumerate(plan.fault_class) if c == "none"][:2]
+    bad = {e: [r for r in rows if r["engine"] == e and r["flight"] >= 4] for e in healthy}
+    blank = [dict(r, T30=np.nan) if r["engine"] in healthy and r["flight"] >= 4 else r for r in rows]
+    for r in bad[healthy[0]]:
+        r["T30"] = r["T30"] - 273.15
+    for r in bad[healthy[1]]:
+        r["T30"] = (r["T30"] - 273.15) * 1.8 + 32.0
+    recwarn.clear()
+    got = diagnose_fleet(read_snapshot_table(write_table(tmp_path / "two.csv", rows), db), db)[0]
+    said = [str(w.message) for w in recwarn.list if str(w.message).startswith("T30:")]
+    assert len(said) == 1 and f"degC on {healthy[0]}" in said[0] and f"degF on {healthy[1]}" in said[0], said
+    ref = diagnose_fleet(read_snapshot_table(write_table(tmp_path / "blank.csv", blank), db), db)[0]
+    for a, b in zip(got, ref):
+        assert (a.detected, a.cls, a.kind, a.onset, a.missing) == (b.detected, b.cls, b.kind, b.onset, b.missing), (a, b)
+
+
 def test_snapshots_with_times_of_their_own_and_dates_day_or_month_first(tmp_path, db, plan):
     """A report per snapshot (idle at 06:00, cruise at 08:00) with no flight numbers, its dates day-
     first (27/01/2026 08:00) or month-first with AM/PM: each engine's snapshots grouped into its

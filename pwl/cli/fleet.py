@@ -293,7 +293,8 @@ def run_diagnose(args) -> int:
         elif r.kind == "intermittent":
             what = f"intermittent (its bias came and went; when on {readable_detail(r.detail, units)} from its baseline)"
         elif r.kind == "erratic":
-            what = (f"erratic (its readings scatter {r.detail.partition('=')[2]} times as much from flight to flight "
+            where = "within each snapshot" if r.detail.startswith("noise_ratio") else "from flight to flight"
+            what = (f"erratic (its readings scatter {r.detail.partition('=')[2]} times as much {where} "
                     "as before: a loose connector, a failing sensor?)")
         after = f" (after {', '.join(r.earlier.split())}, still present)" if r.earlier else ""
         print(f"  {e}: {r.cls} from flight {r.onset}, {what}, confidence {r.confidence:.2f}{after}")

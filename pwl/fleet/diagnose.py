@@ -274,16 +274,34 @@ def in_flight_order(flights: list[FlightRecord]) -> tuple[list[FlightRecord], st
         return sorted(flights, key=lambda r: (r.index, nat(r))), (
             f"{why}: ordered by flight_index" if len(timeless) < len(flights) else "")
     some = len(timeless) < len(flights) or min(idx, default=-1) >= 0     # a time or an index to go by
-    return sorted(flights, key=nat), (f"{why} and no distinct flight_index: ordered by file name" if some else "")
+    out = sorted(flights, key=nat)
+    if some:
+        return out, f"{why} and no distinct flight_index: ordered by file name"
+    return out, (f"{NAMES_ONLY} ({os.path.basename(out[0].source)} first, {os.path.basename(out[-1].source)} last)"
+                 if len(out) > 1 else "")
+
+
+#: the note of an engine whose flights have neither a flight time nor a flight index
+#: (:func:`in_flight_order`): before, such flights were ordered by file name without a word, and
+#: files named by day-first dates (05-02-2026) put an LPC loss at the wrong flights
+NAMES_ONLY = ("no flight has a flight_time or a flight_index: ordered by file name in natural order (name the "
+              "files so that they sort in flight order, dates as YYYY-MM-DD, or record flight_time)")
 
 
 def order_notes(records: list[FlightRecord]) -> list[str]:
     """A line for every engine whose flight order had to be chosen (:func:`in_flight_order`)."""
-    out = []
+    out, named = [], []
     for engine, flights in group_engines(records).items():
         note = in_flight_order(flights)[1]
-        if note:
+        if note.startswith(NAMES_ONLY):
+            named.append((engine, note))
+        elif note:
             out.append(f"engine {engine}: {note}")
+    if len(named) == 1:
+        out.append(f"engine {named[0][0]}: {named[0][1]}")
+    elif named:                                   # one line for the fleet, not one per engine
+        engines = ", ".join(e for e, _ in named[:3]) + (", ..." if len(named) > 3 else "")
+        out.append(f"{len(named)} engines ({engines}): {NAMES_ONLY}")
     return out
 
 
@@ -589,21 +607,27 @@ def read_in_other_units(series: list[EngineSeries], units: dict) -> None:
     for es in series:
         for _, c, d, raw in es.gross:
             by.setdefault(c, []).append((d, raw))
+    def ways_of(hits, c):
+        return [converter(u, units.get(c, "")) for u in _gross_units(*np.array(hits).T, units.get(c, ""))]
+
+    def other_unit(raw, d, ways):
+        """Whether values ``raw`` (relative deviations ``d``) are off and in one of ``ways``."""
+        with np.errstate(invalid="ignore", divide="ignore"):
+            fits = [np.abs((raw * a + b) * (1.0 + d) / raw - 1.0) < UNIT_FIT for a, b in ways]
+            return (np.abs(d) > UNIT_SUSPECT) & np.any(fits, axis=0)
+
     for c, hits in by.items():
-        ways = [converter(u, units.get(c, "")) for u in _gross_units(*np.array(hits).T, units.get(c, ""))]
-
-        def other_unit(raw, d):
-            """Whether values ``raw`` (relative deviations ``d``) are off and in one of ``ways``."""
-            with np.errstate(invalid="ignore", divide="ignore"):
-                fits = [np.abs((raw * a + b) * (1.0 + d) / raw - 1.0) < UNIT_FIT for a, b in ways]
-                return (np.abs(d) > UNIT_SUSPECT) & np.any(fits, axis=0)
-
-        if not ways:
-            continue
+        fleet_ways = ways_of(hits, c)
         for es in [es for es in series if es.raw is not None]:
+            # the engine's own gross values' unit first: two engines' mistakes may differ (one
+            # engine's T30 in degC, another's in degF: the fleet's median pointed to degC only)
+            own = [(d, raw) for _, cc, d, raw in es.gross if cc == c]
+            ways = (ways_of(own, c) if own else []) or fleet_ways
+            if not ways:
+                continue
             cols = [j for j, name in enumerate(es.channels) if name.split("@")[0] == c]
-            at = [i for i, cc, d, raw in es.gross if cc == c and other_unit(np.array(raw), np.array(d))]
-            at += np.flatnonzero(other_unit(es.raw[:, cols], es.D[:, cols]).any(axis=1)).tolist()
+            at = [i for i, cc, d, raw in es.gross if cc == c and other_unit(np.array(raw), np.array(d), ways)]
+            at += np.flatnonzero(other_unit(es.raw[:, cols], es.D[:, cols], ways).any(axis=1)).tolist()
             if not at:
                 continue
             for i in range(min(at), max(at) + 1):          # the stretch: every value of it, not only the off ones
@@ -635,11 +659,20 @@ def gross_note(series: list[EngineSeries], units: dict) -> list[str]:
             by.setdefault(c, []).append((es.engine, es.flights[i].label, d, raw))
     out = []
     for c, hits in by.items():
-        d, raw = np.array([h[2:] for h in hits]).T
-        guess = _gross_units(d, raw, units.get(c, ""))
-        why = (f"logged in {' or '.join(guess)} there? Declare the unit" if guess
-               else "a failed sensor, or a unit mistake?")
         engines = list(dict.fromkeys(h[0] for h in hits))
+        d, raw = np.array([h[2:] for h in hits]).T
+        per: dict[tuple, list] = {}              # each engine's own unit (two mistakes may differ)
+        for e in engines:
+            de, re_ = np.array([h[2:] for h in hits if h[0] == e]).T
+            per.setdefault(tuple(_gross_units(de, re_, units.get(c, ""))), []).append(e)
+        if len(per) > 1 and all(per):
+            why = "logged in " + "; in ".join(
+                f"{' or '.join(g)} on {', '.join(es[:3])}{', ...' if len(es) > 3 else ''}" for g, es in per.items()) \
+                + " there? Declare the unit"
+        else:
+            guess = _gross_units(d, raw, units.get(c, ""))
+            why = (f"logged in {' or '.join(guess)} there? Declare the unit" if guess
+                   else "a failed sensor, or a unit mistake?")
         first = {e: next(h[1] for h in hits if h[0] == e) for e in engines[:3]}
         where = ", ".join(f"{e} from {lb}" for e, lb in first.items()) + (", ..." if len(engines) > 3 else "")
         out.append(f"{c}: {len(hits)} snapshot value(s) of {len(engines)} engine(s) ({where}) "
@@ -2228,8 +2261,9 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
         # (on every flight of the baseline with these channels: the flights left out as off for a
         # flight or in transition are what an erratic sensor makes)
         flown = first + np.flatnonzero(np.all(present[first: k + 1][:, idx], axis=1))
-        if not dec.detected and dec.status in ("ok", "cleared") and \
-                _erratic(dec, es, es.D[flown][:, idx], idx, number[flown], [c.onset for c in known], Sigma, cfg):
+        if not dec.detected and dec.status in ("ok", "cleared") and (
+                _erratic(dec, es, es.D[flown][:, idx], idx, number[flown], [c.onset for c in known], Sigma, cfg)
+                or _noisier(dec, es, flown, idx, number, cfg.n_base + 1)):
             dec.earlier = _earlier(dec, mine)
         if not dec.detected and dec.status in ("ok", "cleared"):
             _stuck_row(dec, es, k, number)
@@ -2560,6 +2594,51 @@ def _erratic(dec: Decision, es: EngineSeries, D: np.ndarray, idx: np.ndarray, t:
         dec.p_value, dec.statistic, dec.detail = min(1.0, p * n_tests), ratio, f"scatter_ratio={np.sqrt(ratio):.3g}"
         return True
     return False
+
+
+#: a sensor whose readings scatter within its snapshots NOISY_RATIO times as much as on its
+#: baseline's first flights (their standard errors, over the engine's other sensors' on the same
+#: flight), on the latest flight and the one before, is ``erratic`` (:func:`_noisier`)
+NOISY_RATIO = 3.0
+
+
+def _noisier(dec: Decision, es: EngineSeries, flown: np.ndarray, idx: np.ndarray, number: np.ndarray,
+             base: int) -> bool:
+    """A sensor noisier within each snapshot since some flight (a failing thermocouple, a loose
+    connector): ``dec`` becomes its ``erratic`` fault, onset the first flight of the run, its detail
+    the ratio of standard errors (``noise_ratio``); True then. Per sensor (its channels of ``idx``,
+    every regime), each flight's standard errors (``es.SE``) over their median on the first
+    ``base`` flights of ``flown`` (the baseline's flights with these channels, positions), the
+    median over its regimes, over the median of the engine's other sensors on that flight (a
+    shorter or less steady window raises every sensor's alike): at least :data:`NOISY_RATIO` on
+    the latest two flights. Snapshot tables carry no standard errors: never. T30 five times as
+    noisy from flight 6 in a probe fleet of logs: every row 'ok' (its snapshot means, of
+    thousands of samples, hardly moved), the misfits only in the run's counts."""
+    if flown.size < base + 2 or flown[-2] != flown[-1] - 1:
+        return False
+    names = np.array([es.channels[i].split("@")[0] for i in idx])
+    sensors = list(dict.fromkeys(names.tolist()))
+    if len(sensors) < 3:
+        return False
+    se = es.SE[flown][:, idx]
+    with np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)        # channels without standard errors
+        ref = np.nanmedian(se[:base], axis=0)
+        r = np.where(ref > 0.0, se / ref, np.nan)
+        per = np.column_stack([np.nanmedian(r[:, names == s], axis=1) for s in sensors])     # (flights, sensors)
+        rel = np.column_stack([per[:, j] / np.nanmedian(np.delete(per, j, axis=1), axis=1)
+                               for j in range(len(sensors))])
+    last = np.where(np.isfinite(rel[-2:]), rel[-2:], 0.0).min(axis=0)
+    j = int(np.argmax(last))
+    if last[j] < NOISY_RATIO:
+        return False
+    start = rel.shape[0] - 1
+    while start - 1 >= base and rel[start - 1, j] >= NOISY_RATIO and flown[start - 1] == flown[start] - 1:
+        start -= 1
+    dec.status, dec.detected, dec.cls, dec.kind = "ok", 1, f"sensor:{sensors[j]}", "erratic"
+    dec.onset, dec.statistic = int(number[flown[start]]), float(last[j])
+    dec.detail, dec.confidence = f"noise_ratio={last[j]:.3g}", 1.0
+    return True
 
 
 def recoveries(decisions: list[Decision]) -> list[Decision]:
