@@ -1006,9 +1006,17 @@ class Estimator:
 
     def _misfit_text(self, c: str) -> str:
         """Sensor c's typical logged value and prediction where it misfit, and the units that would
-        make them agree (a unit mistake inside the plausible range: a T48 in degC read as K)."""
+        make them agree (a unit mistake inside the plausible range: a T48 in degC read as K); or,
+        when it logged one value on every sample kept while the prediction moved, that value."""
         have, want = (float(v) for v in self._typical(("misfit", c)))
         unit = self.channel_units.get(c, "")
+        kept = np.concatenate(self._evidence[("misfit", c)])
+        if kept.shape[0] > 1 and np.all(kept[:, 0] == kept[0, 0]) and np.ptp(kept[:, 1]) > 0.0:
+            # one value where the model moved: no unit makes that fit (T48 stuck at 950 K read
+            # "logged in degC?", its prediction 1228 K on the cruise)
+            return (f"one value, {kept[0, 0]:.6g} {unit}, on every sample kept where it misfit, while its "
+                    f"prediction moved {kept[:, 1].min():.6g} to {kept[:, 1].max():.6g}: a stuck sensor or a frozen "
+                    "bus word?")
         tol = self._model.gate[0, self.db.names["y"].index(c)] * abs(want)
         guess = likely_units(have, unit, want - tol, want + tol)
         why = (f"logged in {' or '.join(guess)}? Declare the unit (a 'name[unit]' column, a row of units or "

@@ -719,3 +719,21 @@ def test_a_stream_flags_samples_far_outside_the_trim_grid_as_a_log_run_does():
         warnings.simplefilter("ignore")
         batch = est.run_arrays(*est._split(log))
     np.testing.assert_array_equal(flags, batch.flags)
+
+
+def test_a_sensor_stuck_at_one_value_is_named_so_not_given_a_unit():
+    """T48 written 950 K on every sample of the clean demo flight (a thermocouple open, a frozen
+    bus word): the misfit warning names the one value and the range its prediction moved over.
+    Before, it guessed a unit ("logged in degC?": 950 K is about 1228 K less 273 on the cruise)."""
+    from pwl.demo_data import demo_paths
+    from pwl.logs import read_log
+
+    db_path, logs = demo_paths()
+    log = read_log([p for p in logs if "degraded" not in p][0])
+    log.channels["T48"] = np.full_like(log.channels["T48"], 950.0)
+    with warnings.catch_warnings(record=True) as got:
+        warnings.simplefilter("always")
+        Estimator(db_path).run(log)
+    said = [str(w.message) for w in got if "'T48' misfit" in str(w.message)]
+    assert said and all("one value, 950 K, on every sample kept where it misfit" in s and "degC" not in s
+                        for s in said), said

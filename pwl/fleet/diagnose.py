@@ -1796,8 +1796,7 @@ def _steadied(D, Sk, t, Wt, found: list, columns: list[str]) -> np.ndarray:
         after = t >= f.onset
         for name, v in (kv.split("=") for kv in f.detail.split()):
             if name.startswith("sensor:") and name in columns and after.sum() >= 3:
-                col = Sk[after][:, :, columns.index(name)]
-                alt = D[after] - float(v) * (col - col.mean(axis=0))
+                alt = _calibrated(D[after], Sk[after], [(columns.index(name), float(v))], int(after.sum()))
                 if spread(alt) < spread(D[after]):
                     D = D.copy()
                     D[after] = alt
