@@ -659,3 +659,24 @@ def test_a_sensor_stuck_at_one_value_in_every_regime_is_read_so(tmp_path, db, pl
         assert all(d.detected and d.cls == "sensor:T48" and d.kind == "stuck" and d.onset == 5 and "T48" in d.missing
                    for d in late), [(d.flight, d.cls, d.kind, d.onset, d.missing) for d in late]
     assert any("T48: one value in every regime" in str(w.message) and "(950)" in str(w.message) for w in recwarn)
+
+
+def test_a_gain_error_of_a_scheduling_sensor_is_that_sensor(tmp_path, db, plan):
+    """Nf reading 1 % high from flight 4 on two healthy engines (snapshots of 300 readings): the
+    offset it makes grows with the speed (about 25 rpm at idle, 39 at cruise) and moves the
+    operating point the trims are taken at, unlike an offset. Every row from 6 reads `sensor:Nf`
+    from 4, its bias at the mean level within 15 % of 1 % of Nf there (its detail holds the gain
+    part). Before, the sensor's offset column alone read `fan+lpc` with an LPC efficiency rising
+    0.4 % (a probe fleet of logs: Nf x1.01 and x1.005)."""
+    healthy = [plan.serial[i] for i, c in enumerate(plan.fault_class) if c == "none"][:2]
+    rows = table_rows(plan, samples=300)
+    for r in rows:
+        if r["engine"] in healthy and r["flight"] >= 4:
+            r["Nf"] *= 1.01
+    got = diagnose_fleet(read_snapshot_table(write_table(tmp_path / "t.csv", rows), db), db)[0]
+    for e in healthy:
+        late = [d for d in got if d.engine == e and d.flight >= 6]
+        assert all(d.detected and d.cls == "sensor:Nf" and d.kind == "step" and d.onset == 4 for d in late), \
+            [(d.flight, d.cls, d.kind, d.onset, d.detail) for d in late]
+        assert "gain:Nf=" in late[-1].detail
+        assert late[-1].magnitude == pytest.approx(0.01, rel=0.15)

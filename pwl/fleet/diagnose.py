@@ -169,9 +169,9 @@ def hypotheses(columns: list[str], pairs: bool = True) -> list[Hypothesis]:
     comps: dict[str, list[int]] = {}
     out = []
     for j, c in enumerate(columns):
-        if c.startswith("sensor:"):
-            out.append(Hypothesis(c, [j]))
-        else:
+        if c.startswith("sensor:"):                # with its gain column, if it has one
+            out.append(Hypothesis(c, [j] + [i for i, g in enumerate(columns) if g == f"gain:{c[7:]}"]))
+        elif not c.startswith("gain:"):
             comps.setdefault(component(c), []).append(j)
     bank = [Hypothesis(k, v) for k, v in comps.items()]
     if pairs:
@@ -900,7 +900,7 @@ def _fleet_norm(series: list[EngineSeries], Sigma: np.ndarray, cfg: "DiagnosisCo
     its component columns), and of what they leave per channel (with ``leverage``, each channel's
     residual scaled back by 1 / sqrt(1 - its leverage in that fit)). Robust to the engines with a
     fault, up to half of them."""
-    cols = np.array([j for j, c in enumerate(series[0].columns) if not c.startswith("sensor:")] if series else [])
+    cols = np.array([j for j, c in enumerate(series[0].columns) if not c.startswith(("sensor:", "gain:"))] if series else [])
     if cols.size == 0:
         return None
     vals, rest = [], []
@@ -1547,14 +1547,22 @@ def _size(dec, es, rowsok, cols, th, cov, sensor=None) -> None:
     main = next((i for i, c in enumerate(names) if c.endswith("_eff")), 0)
     dec.magnitude, dec.magnitude_std = float(th[main]), float(sd[main])
     if sensor is not None:
-        dec.magnitude, dec.magnitude_std, dec.bias = _sensor_size(es, rowsok, cols[sensor], th[sensor], sd[sensor])
+        # a scheduling sensor's gain part (its next column): the bias at its mean level is both
+        g = sensor + 1
+        gain = (th[g], cov[g, g], cov[sensor, g]) if g < len(cols) and names[g] == f"gain:{names[sensor][7:]}" else None
+        dec.magnitude, dec.magnitude_std, dec.bias = _sensor_size(es, rowsok, cols[sensor], th[sensor], sd[sensor], gain)
 
 
-def _sensor_size(es, rowsok, col, value, sd) -> tuple[float, float, float]:
+def _sensor_size(es, rowsok, col, value, sd, gain=None) -> tuple[float, float, float]:
     """(magnitude, its standard error, bias) of a bias ``value`` +- ``sd`` of the sensor in
     signature column ``col``: a sensed output's bias is fitted in raw units (the bias) and reported
-    as a fraction of its level; an input's (fuel flow) is relative, its bias value * level."""
+    as a fraction of its level; an input's (fuel flow) is relative, its bias value * level. A
+    scheduling sensor's ``gain`` (value, variance, covariance with ``value``) adds gain x its mean
+    level to the offset."""
     lev = float(np.nanmean(es.level[rowsok][:, col]))
+    if gain is not None:
+        g, var, c = gain
+        value, sd = value + g * lev, np.sqrt(max(sd ** 2 + lev ** 2 * var + 2.0 * lev * c, 0.0))
     if es.columns[col][7:] in es.input_names:
         return float(value), float(sd), float(value * lev)
     return float(value / lev), float(sd / abs(lev)), float(value)
@@ -1588,25 +1596,27 @@ def _sensor_part(dec, D, Wt, S, t, bank, cfg, known, n_tests, es, rowsok) -> Non
     if hi < len(comps):
         return
     c, h = comps[(hi - len(comps)) // len(sensors)], cands[hi]
+    x = sensors[(hi - len(comps)) % len(sensors)]
+    r = len(x.columns)                             # its offset (and a scheduling sensor's gain)
     alone = next((f[2] for f in fits if f[1] == comps.index(c)), None)
-    size = float(np.linalg.norm(S[:, h.columns[-1]] * th[-1]))
+    size = float(np.linalg.norm(S[:, h.columns[-r:]] @ th[-r:]))
     if alone is None or T - alone < h.cost(cfg) - c.cost(cfg) or \
-            stats.chi2.sf(T - alone, 1) * n_tests >= cfg.alpha or size < cfg.min_step:
+            stats.chi2.sf(T - alone, r) * n_tests >= cfg.alpha or size < cfg.min_step:
         return
     # nor what every component restored explains: an overhaul (every health parameter back to
     # new) fitted two components with T30 2.9 K or Ps30 3 kPa off, a lasting false sensor fault
-    health = [i for i, n in enumerate(es.columns) if not n.startswith("sensor:")]
+    health = [i for i, n in enumerate(es.columns) if not n.startswith(("sensor:", "gain:"))]
     wide = _fit_changes(D, Wt, S, t, [float(dec.onset)], "step",
-                        [Hypothesis("", health), Hypothesis("", health + h.columns[-1:])], cfg, trend=cfg.wear,
+                        [Hypothesis("", health), Hypothesis("", health + x.columns)], cfg, trend=cfg.wear,
                         **_nuisance(known, dec.onset))
-    if len(wide) == 2 and stats.chi2.sf(wide[1][2] - wide[0][2], 1) * n_tests >= cfg.alpha:
+    if len(wide) == 2 and stats.chi2.sf(wide[1][2] - wide[0][2], r) * n_tests >= cfg.alpha:
         return
     sc = np.array(sorted(score.values(), reverse=True))
     w = np.exp((sc - sc[0]) / 2.0)
-    dec.detected, dec.kind, dec.status, dec.cls = 1, "step", "ok", es.columns[h.columns[-1]]
+    dec.detected, dec.kind, dec.status, dec.cls = 1, "step", "ok", x.name
     dec.statistic, dec.confidence = T, float(w[0] / w.sum())
     dec.runner_up = cands[sorted(score, key=lambda i: -score[i])[1]].name
-    _size(dec, es, rowsok, h.columns, th, cov, len(h.columns) - 1)
+    _size(dec, es, rowsok, h.columns, th, cov, len(h.columns) - r)
 
 
 #: the quantile of an engine's flight-to-flight differences that gives its own scatter: a step

@@ -81,6 +81,10 @@ class Signatures:
         self.inlet = [c for c in ((corr.theta_channel, corr.delta_channel) if corr else ())
                       if c not in names["y"] and c not in names["u"]]
         self.columns = list(names["h"]) + [f"sensor:{c}" for c in list(names["y"]) + list(names["u"]) + self.inlet]
+        # a scheduling sensor's bias has a gain column too (per fraction of its reading): an
+        # offset and a gain of it move the operating point differently at idle and at cruise
+        # (Nf reading 1 % high, fitted as an offset only, read a fan and LPC change)
+        self.columns += [f"gain:{c}" for c in self.sched_y]
         # the inlet pressure against the one the air data give (pressure altitude, Mach and the
         # plant's inlet recovery, :meth:`GainDatabase.inlet_from_air_data`), when the database can:
         # a channel only that sensor's bias moves (a fan and HPC wash read as a P2 bias of -0.3 %:
@@ -170,4 +174,7 @@ class Signatures:
             cols.append((side[0] - side[1]) / (2.0 * h))
         if cols:
             S = np.hstack([S, np.column_stack(cols)])
+        gains = [nh + nm["y"].index(c) for c in self.sched_y]      # a gain: the offset column x the reading
+        S = np.hstack([S, S[:, gains] * level[gains]])
+        level = np.r_[level, level[gains]]
         return Deviation(list(self.channels), d, s, S, list(self.columns), level, p)

@@ -76,6 +76,7 @@ def detail_units(db: GainDatabase) -> dict[str, str]:
     units = dict.fromkeys(db.names["h"], "%")
     units.update({f"sensor:{c}": "%" for c in db.names["u"]})
     units.update({f"sensor:{c}": u for c, u in zip(db.names["y"], db.units["y"])})
+    units.update({f"gain:{c}": "%" for c in db.names["y"]})     # a scheduling sensor's gain part
     if db.correction is not None:         # the inlet sensors (pwl.fleet.signatures)
         for c in (db.correction.theta_channel, db.correction.delta_channel):
             units.setdefault(f"sensor:{c}", (db.log_channels or {}).get(c, ("",))[0])
