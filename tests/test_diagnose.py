@@ -1123,3 +1123,12 @@ def test_a_sensor_noisier_within_its_snapshots_is_erratic():
     short = se.copy()
     short[8:] *= 5.0
     assert not judge(short)[0]
+
+
+def test_serials_that_differ_in_leading_zeros_are_one_engine():
+    """ESN007 written ESN7 on most rows (a ground station dropping the zeros) is one engine, spelt
+    with its zeros, named in the line that says so; ESN070 is another. Before, two engines: ESN007's bias found on its
+    first flights was lost in both."""
+    from pwl.fleet.diagnose import one_spelling
+    to, said = one_spelling(["ESN007"] * 12 + ["ESN7"] * 18 + ["ESN070"] * 30)
+    assert to == {"ESN7": "ESN007"} and len(said) == 1 and "'ESN7'" in said[0] and "ESN070" not in said[0]

@@ -111,7 +111,7 @@ def read_flights(files, engine_pattern=None):
 def read_inputs(command, paths, database=None, channel_map=None, engine_pattern=None):
     """(records, skipped) of ``paths``: results files and folders of ``pwl run`` (:func:`read_flights`)
     and snapshot tables (files, :func:`pwl.fleet.snapshot_table.read_snapshot_table`, which need
-    ``database``), serials that differ only in case or spaces made one (named:
+    ``database``), serials that differ only in case, spaces or leading zeros made one (named:
     :func:`pwl.fleet.diagnose.same_engines`); (None, []) after printing why when there is nothing
     to read or no database."""
     from ..database import GainDatabase

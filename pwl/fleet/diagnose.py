@@ -368,8 +368,10 @@ def _whole(v, path) -> int:
 
 
 def serial_key(engine: str) -> str:
-    """An engine serial without case and spaces: what two spellings of one serial share."""
-    return "".join(engine.split()).casefold()
+    """An engine serial without case, spaces and leading zeros of its numbers (ESN007, esn 007,
+    ESN7): what two spellings of one serial share. A ground station dropping the zeros on some
+    rows (ESN7 from flight 12) made two engines, and ESN007's Nc bias was lost in both."""
+    return re.sub(r"\d+", lambda m: str(int(m.group())), "".join(engine.split()).casefold())
 
 
 def engine_named(name: str, engines) -> str:
@@ -382,8 +384,8 @@ def engine_named(name: str, engines) -> str:
 
 
 def one_spelling(names: list[str], what: str = "flights") -> tuple[dict[str, str], list[str]]:
-    """Engine serials that differ only in case or whitespace (``ESN001``, ``esn001``, ``ESN 001``:
-    typed by hand, or two systems' exports) are one engine, spelt as most of ``names`` (one per
+    """Engine serials that differ only in case, whitespace or leading zeros (``ESN001``, ``esn001``,
+    ``ESN 001``, ``ESN1``: typed by hand, or two systems' exports) are one engine, spelt as most of ``names`` (one per
     flight, or per table row: ``what``) spell it (the first in natural order on a tie). Returns
     (spelling -> the one kept, for the serials merged; a line naming them, or none)."""
     spell: dict[str, dict[str, int]] = {}
@@ -393,13 +395,14 @@ def one_spelling(names: list[str], what: str = "flights") -> tuple[dict[str, str
     to, merged = {}, []
     for n in spell.values():
         if len(n) > 1:
-            best = min(n, key=lambda e: (-n[e], _natural(e)))
+            # the zero-padded spelling (ESN007, not ESN7), then the most used
+            best = min(n, key=lambda e: (-sum(map(len, re.findall(r"\d+", e))), -n[e], _natural(e)))
             to.update({e: best for e in n if e != best})
             merged.append(f"{best!r} (also {', '.join(repr(e) for e in n if e != best)}: "
                           f"{sum(v for e, v in n.items() if e != best)} of its {sum(n.values())} {what})")
     if not merged:
         return to, []
-    return to, [f"{len(merged)} engine serial(s) spelt more than one way, differing only in case or spaces, "
+    return to, [f"{len(merged)} engine serial(s) spelt more than one way, differing only in case, spaces or leading zeros, "
                 f"each read as one engine: {'; '.join(merged[:3])}{'; ...' if len(merged) > 3 else ''}"]
 
 
@@ -2701,7 +2704,7 @@ def group_engines(records: list[FlightRecord]) -> dict[str, list[FlightRecord]]:
 
 def prepare(records: list[FlightRecord], db: GainDatabase) -> tuple[Signatures, np.ndarray]:
     """Signatures of the database and the operating regimes of ``records`` (sets their windows;
-    serials that differ only in case or spaces made one, :func:`same_engines`); a
+    serials that differ only in case, spaces or leading zeros made one, :func:`same_engines`); a
     :class:`PwlWarning` for that, and when some results were computed with another database
     (their recorded digest differs from ``db``'s)."""
     if not records:

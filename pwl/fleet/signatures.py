@@ -16,7 +16,8 @@ inputs the pair is square and gives dx, du. The relative deviations of the other
 
 so d = S [h; b] with one signature column per health parameter and per bias. A sensed output's
 bias is an offset in its raw unit (a thermocouple reading 15 K high, at any power); an input's is
-relative (a fuel-flow meter reading 2 % high). Biases of non-scheduling channels move only their
+relative (a fuel-flow meter reading 2 % high); a scheduling sensor's has a gain column besides
+(``gain:<channel>``, the offset column times its reading: a speed sensor reading 1 % high). Biases of non-scheduling channels move only their
 own deviation; a scheduling-sensor bias moves the operating point and so every other channel, and
 so does a bias of the inlet sensors that theta and delta come from (T2, P2: the correction, the
 corrected operating point and the day's trims move), whose columns are taken numerically. Where

@@ -10,7 +10,7 @@ Excel workbook's first sheet, or a pandas DataFrame)::
 Columns, names in any case:
 
 - ``engine`` (or ``esn``, ``serial``, ``engine_serial``): the engine serial (spellings that differ
-  only in case or spaces are one engine: :func:`pwl.fleet.diagnose.one_spelling`);
+  only in case, spaces or leading zeros are one engine: :func:`pwl.fleet.diagnose.one_spelling`);
 - ``flight`` (or ``flight_index``, ``flight_number``, ``cycle``; a whole number) and/or
   ``flight_time`` (or ``date``, ``datetime``, ``timestamp``; ISO 8601, or day- or month-first
   dates: :func:`_times`): the flights' order, as for results files
