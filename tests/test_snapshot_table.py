@@ -680,3 +680,21 @@ def test_a_gain_error_of_a_scheduling_sensor_is_that_sensor(tmp_path, db, plan):
             [(d.flight, d.cls, d.kind, d.onset, d.detail) for d in late]
         assert "gain:Nf=" in late[-1].detail
         assert late[-1].magnitude == pytest.approx(0.01, rel=0.15)
+
+
+def test_a_flight_sent_twice_with_other_values_is_named(tmp_path, db, plan, recwarn):
+    """A healthy engine's flight 8 cruise row sent again at the end of the table with T48 30 K
+    higher: one warning names the engine, flight, rows and T48 (the diagnosis reads one of the two
+    and leaves the other out: before, without a word, and which one decided fault or no fault);
+    the clean table gives none."""
+    rows = table_rows(plan)
+    e = [plan.serial[i] for i, c in enumerate(plan.fault_class) if c == "none"][0]
+    recwarn.clear()
+    diagnose_fleet(read_snapshot_table(write_table(tmp_path / "clean.csv", rows), db), db)
+    assert not [w for w in recwarn.list if "two rows at one operating point" in str(w.message)]
+    at = max(k for k, r in enumerate(rows) if r["engine"] == e and r["flight"] == 8)
+    rows.append(dict(rows[at], T48=rows[at]["T48"] + 30.0))
+    recwarn.clear()
+    read_snapshot_table(write_table(tmp_path / "twice.csv", rows), db)
+    said = [str(w.message) for w in recwarn.list if "two rows at one operating point" in str(w.message)]
+    assert len(said) == 1 and f"engine {e} flight 8, rows {at + 2} and {len(rows) + 1}, T48" in said[0], said

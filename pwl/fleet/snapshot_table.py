@@ -196,7 +196,9 @@ def read_snapshot_table(source, db: GainDatabase, channel_map=None) -> list[Flig
                      if i_f is not None else {})
     keep = np.flatnonzero(~repeat)
     if i_f is not None:
-        return [record(e, fl, tm, rows) for e, fl, tm, rows in _numbered_flights(column, keep)]
+        flights = _numbered_flights(column, keep)
+        _warn_twice(path, flights, P / db.p_spans(), X, chans)
+        return [record(e, fl, tm, rows) for e, fl, tm, rows in flights]
     records = [record(column["engine"][k], "", column["time"][k], np.array([k])) for k in keep]
     return _timed_flights(path, records, record, db)
 
@@ -279,6 +281,38 @@ def _record(path, db, chans, X, P, count, numbers, engine, fl, tm, rows) -> Flig
     label = f"flight {fl}" if fl else tm
     return FlightRecord(engine, (tm, fidx, _natural(label)), f"{path}:row {rows[0] + 2}", label, snap,
                         db.path, db.digest, "table")
+
+
+#: two rows of one engine and flight number whose operating points are within this share of
+#: every scheduling axis's span are one snapshot sent twice (:func:`_warn_twice`)
+TWICE_SHARE = 0.02
+
+
+def _warn_twice(path, flights: list[tuple], P: np.ndarray, X: np.ndarray, chans: list[str]) -> None:
+    """A PwlWarning for the flights (engine, number, time, rows) holding two rows at one operating
+    point (``P`` (rows, np) over the axes' spans, within :data:`TWICE_SHARE`) with different values
+    (``X`` (rows, channels)): one flight sent twice, with a correction or a fault of its own? Of
+    the two, the diagnosis reads the one with more readings (the first of equal ones) and leaves
+    the other out: the file's order decided. A copy with T48 30 K high read as no fault, or as a
+    T48 bias, by which came first; exact repeats are named as such already."""
+    hits = []
+    for e, fl, _, rows in flights:
+        rows = np.asarray(rows)
+        for i, a in enumerate(rows):
+            for b in rows[i + 1:]:
+                if np.all(np.abs(P[a] - P[b]) <= TWICE_SHARE) and not np.array_equal(X[a], X[b], equal_nan=True):
+                    with np.errstate(invalid="ignore", divide="ignore"):
+                        rel = np.abs(X[b] / X[a] - 1.0)
+                    j = int(np.nanargmax(np.where(np.isfinite(rel), rel, -1.0)))
+                    hits.append((e, fl, a, b, chans[j], float(rel[j])))
+    if hits:
+        e, fl, a, b, c, r = hits[0]
+        warnings.warn(PwlWarning(
+            f"{path}: {len(hits)} flight(s) hold two rows at one operating point with different values (the first: "
+            f"engine {e} flight {fl}, rows {a + 2} and {b + 2}, {c} {100 * r:.2g} % apart): of each pair the row "
+            "with more readings (else the first) is read and the other left out (a flight sent twice and "
+            "corrected? remove the stale row)"),
+            stacklevel=3)
 
 
 def _numbered_flights(column: dict, keep: np.ndarray) -> list[tuple]:
