@@ -83,6 +83,7 @@ from ..database import GainDatabase
 from ..errors import PwlWarning
 from ..formats import RESULTS, check
 from ..h5io import SealError, attr_str, check_seal
+from .scoring import few
 from .signatures import DiagnosisError, Signatures
 from ..snapshots import Snapshots
 from ..workers import SerialExecutor
@@ -300,8 +301,7 @@ def order_notes(records: list[FlightRecord]) -> list[str]:
     if len(named) == 1:
         out.append(f"engine {named[0][0]}: {named[0][1]}")
     elif named:                                   # one line for the fleet, not one per engine
-        engines = ", ".join(e for e, _ in named[:3]) + (", ..." if len(named) > 3 else "")
-        out.append(f"{len(named)} engines ({engines}): {NAMES_ONLY}")
+        out.append(f"{len(named)} engines ({few((e for e, _ in named), 3)}): {NAMES_ONLY}")
     return out
 
 
@@ -581,7 +581,7 @@ def stuck_note(series: list[EngineSeries]) -> list[str]:
     for c, hits in by.items():
         engines = list(dict.fromkeys(h[0] for h in hits))
         first = {e: next((h[1], h[2]) for h in hits if h[0] == e) for e in engines[:3]}
-        where = ", ".join(f"{e} from {lb} ({v:.6g})" for e, (lb, v) in first.items()) + (", ..." if len(engines) > 3 else "")
+        where = few([f"{e} from {lb} ({v:.6g})" for e, (lb, v) in first.items()] + engines[3:], 3)
         out.append(f"{c}: one value in every regime (idle and cruise alike) on {len(hits)} flight(s) of "
                    f"{len(engines)} engine(s) ({where}): a stuck sensor; read as missing there, the flight's "
                    f"row 'sensor:{c} stuck' unless another fault is found")
@@ -670,14 +670,14 @@ def gross_note(series: list[EngineSeries], units: dict) -> list[str]:
             per.setdefault(tuple(_gross_units(de, re_, units.get(c, ""))), []).append(e)
         if len(per) > 1 and all(per):
             why = "logged in " + "; in ".join(
-                f"{' or '.join(g)} on {', '.join(es[:3])}{', ...' if len(es) > 3 else ''}" for g, es in per.items()) \
+                f"{' or '.join(g)} on {few(es, 3)}" for g, es in per.items()) \
                 + " there? Declare the unit"
         else:
             guess = _gross_units(d, raw, units.get(c, ""))
             why = (f"logged in {' or '.join(guess)} there? Declare the unit" if guess
                    else "a failed sensor, or a unit mistake?")
         first = {e: next(h[1] for h in hits if h[0] == e) for e in engines[:3]}
-        where = ", ".join(f"{e} from {lb}" for e, lb in first.items()) + (", ..." if len(engines) > 3 else "")
+        where = few([f"{e} from {lb}" for e, lb in first.items()] + engines[3:], 3)
         out.append(f"{c}: {len(hits)} snapshot value(s) of {len(engines)} engine(s) ({where}) "
                    f"{100 * d.min():+.0f} to {100 * d.max():+.0f} % off the model at their operating point, "
                    f"beyond any fault of the engine or between such values: {why}; read as missing")

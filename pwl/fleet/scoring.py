@@ -87,7 +87,7 @@ def _int(path, line, col, v) -> int:
     return int(x)
 
 
-def _few(names, n=5) -> str:
+def few(names, n=5) -> str:
     """The first ``n`` of ``names``, comma-separated, with '...' when there are more."""
     names = list(names)
     return ", ".join(names[:n]) + (", ..." if len(names) > n else "")
@@ -98,7 +98,7 @@ def _flights(ks) -> str:
     if len(ks) == 1:
         return f"flight {ks[0]}"
     run = ks == list(range(ks[0], ks[-1] + 1))
-    return f"flights {ks[0]}-{ks[-1]}" if run else "flights " + _few(map(str, ks), 3)
+    return f"flights {ks[0]}-{ks[-1]}" if run else "flights " + few(map(str, ks), 3)
 
 
 def _read_truth(path) -> dict:
@@ -130,7 +130,7 @@ def _read_diagnosis(path, truth, truth_path):
     unknown = sorted({r["engine"] for _, r in rows} - set(truth))
     if unknown:
         raise ScoreError(f"{path}: {len(unknown)} engine{'s are' if len(unknown) > 1 else ' is'} "
-                         f"not in {truth_path}: {_few(unknown)}")
+                         f"not in {truth_path}: {few(unknown)}")
     seen, repeats = {}, []                  # (engine, flight) -> (line, detected, row)
     for line, r in rows:
         k = _int(path, line, "flight", r["flight"])
@@ -169,10 +169,10 @@ def _complete(seen, truth):
     if absent:
         notes.append(f"{len(absent)} engine{'s' if len(absent) > 1 else ''} of the truth not in the "
                      f"diagnosis, their {len(absent) * len(flights)} engine-flights counted as not "
-                     f"detected: {_few(absent)}")
+                     f"detected: {few(absent)}")
     if partial:
         notes.append(f"{len(partial)} engine{'s lack' if len(partial) > 1 else ' lacks'} flights other "
-                     f"engines have, counted as not detected: {_few(partial)}")
+                     f"engines have, counted as not detected: {few(partial)}")
     missing = sum(row is None for fl in by_engine.values() for *_, row in fl)
     return by_engine, {"missing_engines": absent, "missing_engine_flights": missing, "notes": notes}
 
