@@ -100,6 +100,30 @@ def test_a_plant_snapshot_fleet_is_diagnosed_from_its_table(tmp_path, db, plan):
             assert abs(d.bias - plan.bias[i]) < 3.0 * d.magnitude_std / d.magnitude * d.bias, (d.bias, plan.bias[i])
 
 
+def test_faults_from_delivery_are_levels_against_the_fleet(tmp_path, db, monkeypatch):
+    """16 engines x 10 flights of the plant, three delivered with a fault (HPT -4 % and LPC -4 %
+    efficiency, flows alike, and T48 +30 K from flight 0: benchmarks/delivered_faults.py): each
+    reads its class, kind level, onset 0 from the first flight tested (n_base), and no healthy
+    engine alarms. The fleet's level spread was the spread of its engines' health estimates, mostly
+    their own noise for the weakly seen parameters: the HPT and LPC engines read 'ok' throughout."""
+    import sys
+    sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "benchmarks"))
+    import delivered_faults
+    monkeypatch.setattr(delivered_faults, "DELIVERED", {1: ("hpt", -0.04), 4: ("lpc", -0.04), 7: ("sensor:T48", 30.0)})
+    plan = delivered_faults._delivered(16, 10, seed=21, fault_fraction=0.0)
+    rows = [r for i in range(16) for j in range(10) for r in fleet.snapshot_rows(plan, i, j, 5)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", PwlWarning)
+        decisions = diagnose_fleet(read_snapshot_table(write_table(tmp_path / "t.csv", rows), db), db)[0]
+    for i, e in enumerate(plan.serial):
+        got = [d for d in decisions if d.engine == e]
+        if plan.fault_class[i] == "none":
+            assert not any(d.detected for d in got), (e, [(d.flight, d.cls) for d in got if d.detected])
+            continue
+        assert all(d.detected and d.cls == plan.fault_class[i] and d.kind == "level" and d.onset == 0
+                   for d in got[3:]), (e, [(d.flight, d.cls, d.kind) for d in got])
+
+
 def test_units_and_names_of_a_table(tmp_path, db, plan):
     """A table with its own column names and units read through a channel map (degC, kPa, lb/s,
     N1 in percent) and one with units declared in its header give the native table's operating

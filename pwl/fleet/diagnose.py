@@ -77,7 +77,7 @@ from typing import NamedTuple
 
 import h5py
 import numpy as np
-from scipy import stats
+from scipy import optimize, stats
 
 from ..database import GainDatabase
 from ..errors import PwlWarning
@@ -837,8 +837,7 @@ def mark_excluded(rows: list, excluded: dict) -> list:
 class FleetNorm:
     """A fleet's normal engine in health-parameter space: per health parameter (``columns``,
     indices into the signature columns, and their ``names``) the median over ``engines`` engines
-    and its robust spread, of wear rates (fraction per flight, :func:`wear_reference`) or of
-    baseline levels (fraction, :func:`level_reference`)."""
+    and its robust spread, of wear rates (fraction per flight, :func:`wear_reference`)."""
 
     columns: np.ndarray
     names: list[str]
@@ -894,14 +893,12 @@ def _usable(es: EngineSeries, Sigma: np.ndarray):
     return ok, idx, whitening(Sigma, idx)
 
 
-def _fleet_norm(series: list[EngineSeries], Sigma: np.ndarray, cfg: "DiagnosisConfig", per_engine,
-                leverage: bool = False) -> FleetNorm | None:
+def _fleet_norm(series: list[EngineSeries], Sigma: np.ndarray, cfg: "DiagnosisConfig", per_engine) -> FleetNorm | None:
     """The median and 1.4826 x median absolute deviation over the engines with at least
     ``cfg.wear_flights`` complete flights (None with fewer than ``cfg.wear_engines``) of
     ``per_engine(D, t, engine)`` (a vector of deviations from an engine's complete flights D at flight
     numbers t) read as health-parameter values (whitened least squares on the mean signatures of
-    its component columns), and of what they leave per channel (with ``leverage``, each channel's
-    residual scaled back by 1 / sqrt(1 - its leverage in that fit)). Robust to the engines with a
+    its component columns), and of what they leave per channel. Robust to the engines with a
     fault, up to half of them."""
     cols = np.array([j for j, c in enumerate(series[0].columns) if not c.startswith(("sensor:", "gain:"))] if series else [])
     if cols.size == 0:
@@ -916,9 +913,6 @@ def _fleet_norm(series: list[EngineSeries], Sigma: np.ndarray, cfg: "DiagnosisCo
         v = per_engine(es.D[ok][:, idx], flight_numbers(es)[ok], es.engine, Wt)
         vals.append(np.linalg.lstsq(Wt @ Sh, Wt @ v, rcond=None)[0])
         r = v - Sh @ vals[-1]
-        if leverage:     # the fit takes up part of each channel's own scatter (m - p of m channels' worth left)
-            A = Wt @ Sh
-            r /= np.sqrt(np.clip(1.0 - np.sum(A * np.linalg.pinv(A).T, axis=1), 1e-3, None))
         rest.append(np.full(m, np.nan))
         rest[-1][idx] = r
     if len(vals) < cfg.wear_engines:
@@ -931,8 +925,6 @@ def _fleet_norm(series: list[EngineSeries], Sigma: np.ndarray, cfg: "DiagnosisCo
         warnings.simplefilter("ignore", RuntimeWarning)      # a channel no engine of the fleet has
         left_median, left = robust(np.array(rest))
     left = np.where(np.isfinite(left), left, np.nanmax(left) if np.isfinite(left).any() else 0.0)
-    if leverage:
-        left = np.maximum(left, cfg.level_floor * np.sqrt(np.diag(Sigma)))
     return FleetNorm(cols, [series[0].columns[j] for j in cols], med, spread, len(vals), left,
                      np.where(np.isfinite(left_median), left_median, 0.0))
 
@@ -1190,23 +1182,135 @@ def fleet_norms(series: list[EngineSeries], Sigma: np.ndarray, cfg: DiagnosisCon
     return wear, level_reference(series, Sigma, cfg)
 
 
+#: the tail probability at which the fleet's level spread is widened for its estimation from a few
+#: engines (:func:`level_reference`): about alpha (1e-3) over the thousand tests of a flight
+LEVEL_TAIL = 1e-6
+#: an engine's baseline beyond this chi-square point of the fleet's spread is left out of it
+#: (:func:`level_reference`)
+LEVEL_KEEP = 0.999
+
+
+@dataclass
+class FleetLevel:
+    """A fleet's normal baseline level (:func:`level_reference`): per deviation channel the mean
+    of the engines kept ``mean`` (m,); the engine-to-engine variances of the health parameters
+    ``columns`` (signature columns) ``health`` and of each channel beside them ``rest`` (m,),
+    without the baselines' own noise; ``wider`` the factor they are widened by for their
+    estimation from the ``kept`` of ``engines`` engines (the others off it), ``floor`` (m,) the
+    least variance per channel."""
+
+    mean: np.ndarray
+    columns: np.ndarray
+    health: np.ndarray
+    rest: np.ndarray
+    wider: float
+    floor: np.ndarray
+    engines: int
+    kept: int
+
+    def at(self, S: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(mean (k,), covariance (k, k)) of a healthy engine's baseline less its noise in the
+        channels ``idx`` (k,) with signatures S (k, ncol): wider x (S_h diag(health) S_h^T +
+        diag(rest)), each variance at least its floor."""
+        Sh = S[:, self.columns]
+        B = self.wider * ((Sh * self.health) @ Sh.T + np.diag(self.rest[idx]))
+        return self.mean[idx], B + np.diag(np.maximum(self.floor[idx] - np.diag(B), 0.0))
+
+
 def level_reference(series: list[EngineSeries], Sigma: np.ndarray,
-                    cfg: DiagnosisConfig = DiagnosisConfig()) -> FleetNorm | None:
-    """The fleet's normal health when its engines' records begin (:func:`_fleet_norm`): each
-    engine's mean deviation over its first n_base + 1 complete flights (its baseline), as
-    health-parameter levels. An engine whose baseline is off it (a fault before its first
-    flight, an engine delivered or repaired with a defect) has no step of its own to find. The
-    per-channel spread is scaled back by each channel's leverage: a sensor's calibration is judged
-    against it, and the residuals alone (10 health parameters fitted on 16 channels) made it too
-    small: with sensors in the level test, 6 of 792 engines of synthetic fleets with normal
-    calibration scatter read a false sensor level (the wear's is left as it was: scaled, it lost
-    an HPC wear of 0.05 %/flight on probe fleet C). It is also at least ``cfg.level_floor`` times
-    each channel's flight-to-flight scatter: engines are compared on baselines flown on other days,
-    aircraft, bleeds and loads, which the trims do not hold; with the trims on the day's ambient
-    (the database's ambient terms) the scatter of Wf and T48 fell 4-7x and a fleet whose baselines
-    were all flown with anti-ice on read them as sensor calibration offsets (probe fleet WINTER:
-    77 false 'level' rows on 9 of 12 engines; none with the floor, 3 other false alarms as before)."""
-    return _fleet_norm(series, Sigma, cfg, lambda D, t, engine, Wt: D[: cfg.n_base + 1].mean(axis=0), leverage=True)
+                    cfg: DiagnosisConfig = DiagnosisConfig()) -> FleetLevel | None:
+    """The fleet's normal baseline when its engines' records begin: each engine's mean deviation
+    over its first n_base + 1 complete flights (its baseline; engines with at least
+    ``cfg.wear_flights`` of them, None with fewer than ``cfg.wear_engines``), their mean per
+    channel and their spread: the engine-to-engine variance of each health parameter and of each
+    channel beside them (calibrations, what the model does not hold), without the baselines' own
+    noise (Sigma / (n_base + 1)): :func:`_level_spread` fitted to a robust covariance of the
+    baselines, then to the covariance of the engines not off it (squared Mahalanobis distance
+    beyond the chi-square :data:`LEVEL_KEEP` point: a fault from the first flight), twice. An
+    engine whose baseline is off it (a fault before its first flight, an engine delivered or
+    repaired with a defect) has no step of its own to find.
+
+    The spread was the robust spread of each engine's health estimate and, per channel, of what
+    it left: the weakly seen health parameters' estimates are mostly their own noise (lpc_eff
+    2.1 % against a delivery scatter of 0.3 %), and an HPT loss of 3-4 %, an LPC or HPC loss of
+    3-4 % and T48 +30 K from the first flight read 'ok' on every flight of a 30-engine table. A
+    covariance in the channels themselves, free, was too many numbers for 20-30 engines (robust
+    searches left healthy engines of its tails out, tests of whole baselines could not tell the
+    faulty ones). The spread is widened by Student's t against the normal at :data:`LEVEL_TAIL`
+    (x1.7 for 26 engines, x10 for 8: an engine judged against a spread estimated from a few
+    others). Each channel's variance is at least ``cfg.level_floor`` squared times its
+    flight-to-flight variance: engines are compared on baselines flown on other days, aircraft,
+    bleeds and loads, which the trims do not hold; with the trims on the day's ambient (the
+    database's ambient terms) the scatter of Wf and T48 fell 4-7x and a fleet whose baselines were
+    all flown with anti-ice on read them as sensor calibration offsets (probe fleet WINTER: 77
+    false 'level' rows on 9 of 12 engines; none with the floor)."""
+    nb = cfg.n_base + 1
+    cols = np.array([j for j, c in enumerate(series[0].columns) if not c.startswith(("sensor:", "gain:"))] if series else [])
+    V, Ss = [], []
+    for es in series:
+        ok, idx, _ = _usable(es, Sigma)
+        if ok.sum() >= cfg.wear_flights:
+            V.append(np.full(es.D.shape[1], np.nan))
+            V[-1][idx] = es.D[ok][:nb][:, idx].mean(axis=0)
+            Ss.append(np.nanmean(es.S[ok], axis=0))
+    if len(V) < cfg.wear_engines or cols.size == 0:
+        return None
+    V = np.array(V)
+    have = np.isfinite(V)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)      # a channel no engine of the fleet has
+        Sh = np.nan_to_num(np.nanmedian(np.array(Ss), axis=0)[:, cols])
+        mean = np.nan_to_num(np.nanmedian(V, axis=0))
+    noise = Sigma / nb
+    health, rest = _level_spread(_pairwise_robust(V - mean, have), Sh, noise)
+    kept = np.ones(len(V), bool)
+    for _ in range(2):
+        total = (Sh * health) @ Sh.T + np.diag(rest) + noise
+        X = np.where(have, V - mean, 0.0)
+        d2 = np.array([X[e, have[e]] @ np.linalg.solve(total[np.ix_(have[e], have[e])], X[e, have[e]])
+                       for e in range(len(V))])
+        kept = d2 <= stats.chi2.ppf(LEVEL_KEEP, np.maximum(have.sum(axis=1), 1))
+        w = (kept[:, None] & have).astype(float)
+        mean = np.where(w.sum(axis=0) > 0, np.sum(np.where(have, V, 0.0) * w, axis=0) / np.maximum(w.sum(axis=0), 1.0), mean)
+        Xw = np.where(have, V - mean, 0.0) * w
+        health, rest = _level_spread((Xw.T @ Xw) / np.maximum(w.T @ w - 1.0, 1.0), Sh, noise)
+    n = int(kept.sum())
+    wider = stats.f.ppf(1.0 - LEVEL_TAIL, 1, max(n - 1, 1)) / stats.chi2.ppf(1.0 - LEVEL_TAIL, 1)
+    return FleetLevel(mean, cols, health, rest, float(wider), cfg.level_floor ** 2 * np.diag(Sigma), len(V), n)
+
+
+def _pairwise_robust(X: np.ndarray, have: np.ndarray) -> np.ndarray:
+    """A robust covariance (m, m) of the rows of X (n, m) (False in ``have``: missing), each pair
+    of channels on the rows that have both: (s(a + b)^2 - s(a - b)^2) / 4 of the channels a, b
+    scaled to unit robust spread s (1.4826 x the median absolute deviation), scaled back
+    (Gnanadesikan and Kettenring); robust to a share of outlying rows below a half, not positive
+    semi-definite in general."""
+    def scale(x):
+        return 1.4826 * float(np.median(np.abs(x - np.median(x)))) if x.size >= 3 else 0.0
+    m = X.shape[1]
+    s = np.array([scale(X[have[:, j], j]) for j in range(m)])
+    s = np.where(s > 0.0, s, 1.0)
+    Z = X / s
+    C = np.eye(m)
+    for j in range(m):
+        for k in range(j):
+            both = have[:, j] & have[:, k]
+            C[j, k] = C[k, j] = (scale(Z[both, j] + Z[both, k]) ** 2 - scale(Z[both, j] - Z[both, k]) ** 2) / 4.0
+    return C * np.outer(s, s)
+
+
+def _level_spread(C: np.ndarray, Sh: np.ndarray, noise: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(health (p,), rest (m,)) >= 0 with Sh diag(health) Sh^T + diag(rest) + noise nearest the
+    covariance C (m, m) of the baselines, Sh (m, p) the health signatures: non-negative least
+    squares on C's entries, each relative to its sampling error (sqrt(C_jj C_kk + C_jk^2): every
+    entry counts, not only the largest variances)."""
+    m, p = Sh.shape
+    iu = np.triu_indices(m)
+    d = np.maximum(np.diag(C), np.diag(noise))
+    err = np.sqrt(d[iu[0]] * d[iu[1]] + C[iu] ** 2)
+    basis = [np.outer(Sh[:, j], Sh[:, j])[iu] for j in range(p)] + [(np.eye(m)[i][iu[0]] * (iu[0] == iu[1])) for i in range(m)]
+    x = optimize.nnls(np.array(basis).T / err[:, None], (C - noise)[iu] / err)[0]
+    return x[:p], x[p:]
 
 
 @dataclass
@@ -1703,8 +1807,8 @@ def _stages(D, Wt, S, t, bank, cfg, wear, known, level=None, slope=None):
     (shape, fits of :func:`_fit_changes`)): deviations D (n, m) at flight numbers t (n,),
     whitening Wt, the signatures S (m, ncol) (they hardly move with the operating point: their
     mean over the flights), the fleet's normal ``wear`` and ``level`` in these channels
-    ((mean (m,), covariance (m, m)) of :meth:`FleetNorm.at`, or for the wear of an engine found to
-    wear faster :meth:`FleetNorm.trend`) or None, ``known`` the changes
+    ((mean (m,), covariance (m, m)) of :meth:`FleetNorm.at` and :meth:`FleetLevel.at`, or for the
+    wear of an engine found to wear faster :meth:`FleetNorm.trend`) or None, ``known`` the changes
     found, in the order found (:func:`_known`), and the engine's steps of a fleet-wide change
     (shape ``fleet``: a nuisance of every test, never a decision); ``slope``: the fleet's wear
     line the engine's is held to (:meth:`FleetNorm.trend`), or None (free).
@@ -1997,7 +2101,7 @@ def _isolated(D: np.ndarray, j: int, Wt: np.ndarray, S: np.ndarray, bank: list[H
     in transients: two healthy engines alarmed on all 19 flights after the first, one on six after
     its second). The first flight off the others is also what a fault on the second flight looks
     like: with ``fleet`` (the fleet's normal baseline in these channels, mean and covariance, and
-    the flight-to-flight scatter Sigma: :meth:`FleetNorm.at`) the side nearer the fleet's normal
+    the flight-to-flight scatter Sigma: :meth:`FleetLevel.at`) the side nearer the fleet's normal
     is the engine's (an LPC loss of 1.5 % on the second flight of a probe engine was lost as its
     first flight's excursion); without a fleet, the first flight is the one that was off."""
     others = np.delete(D, j, axis=0)
@@ -2021,7 +2125,7 @@ def _isolated(D: np.ndarray, j: int, Wt: np.ndarray, S: np.ndarray, bank: list[H
 
 
 def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = DiagnosisConfig(),
-                    wear: FleetNorm | None = None, level: FleetNorm | None = None,
+                    wear: FleetNorm | None = None, level: FleetLevel | None = None,
                     new_baselines: tuple = ()) -> list[Decision]:
     """Causal diagnosis of one engine: one :class:`Decision` per flight, using flights 0..k.
     ``wear``: the fleet's normal wear (:func:`wear_reference`); without it, wear is reported
