@@ -124,6 +124,49 @@ def test_faults_from_delivery_are_levels_against_the_fleet(tmp_path, db, monkeyp
                    for d in got[3:]), (e, [(d.flight, d.cls, d.kind) for d in got])
 
 
+def test_snapshots_of_a_regime_few_engines_report_are_named_not_read(tmp_path, db, plan):
+    """Two engines of twelve also report take-off snapshots: those rows (2 x 12) are in no regime
+    (fewer than 30 % of the flights have one there) and were dropped without a word; now one
+    warning names how many, the engines and the first row, and the diagnosis is the table's
+    without them, row for row."""
+    rows = table_rows(plan, 5)
+    more = [r for i in (0, 1) for j in range(FLIGHTS)
+            for r in fleet.snapshot_rows(plan, i, j, 5, regimes=("takeoff",))]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        got = diagnose_fleet(read_snapshot_table(write_table(tmp_path / "a.csv", rows + more), db), db)[0]
+    lines = [str(w.message) for w in caught if "too few flights share" in str(w.message)]
+    assert len(lines) == 1 and lines[0].startswith(f"{2 * FLIGHTS} snapshots of 2 engines (ESN001, ESN002)"), lines
+    assert f"a.csv:row {len(rows) + 2}, ESN001 flight 0 at alt 0, Mach {fleet.TAKEOFF_MACH:g}" in lines[0], lines[0]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", PwlWarning)
+        plain = diagnose_fleet(read_snapshot_table(write_table(tmp_path / "b.csv", rows), db), db)[0]
+    assert [(d.engine, d.flight, d.cls, d.kind, d.onset) for d in got] == \
+        [(d.engine, d.flight, d.cls, d.kind, d.onset) for d in plain]
+
+
+def test_a_sensor_dead_on_flights_in_a_row_is_named(tmp_path, db, plan):
+    """ESN003's T48 reads nothing from flight 7 (its latest 5), ESN004's Ps30 nothing on flights
+    2-5, ESN005's T48 nothing on flight 6 alone: the rows only listed them in 'missing'; now one
+    warning per channel names the two runs (ESN005's one flight is a gap, not named)."""
+    rows = table_rows(plan, 5)
+    for r in rows:
+        if (r["engine"] == "ESN003" and r["flight"] >= 7) or (r["engine"] == "ESN005" and r["flight"] == 6):
+            r["T48"] = float("nan")
+        if r["engine"] == "ESN004" and 2 <= r["flight"] <= 5:
+            r["Ps30"] = float("nan")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        decisions = diagnose_fleet(read_snapshot_table(write_table(tmp_path / "a.csv", rows), db), db)[0]
+    lines = [str(w.message) for w in caught if "no value on" in str(w.message)]
+    assert len(lines) == 2, lines
+    t48 = next(x for x in lines if x.startswith("T48:"))
+    assert "1 engine(s) (ESN003 flight 7 to flight 11 (5 flights, its latest))" in t48 and "ESN005" not in t48, t48
+    ps30 = next(x for x in lines if x.startswith("Ps30:"))
+    assert "(ESN004 flight 2 to flight 5 (4 flights))" in ps30, ps30
+    assert all("T48" in d.missing for d in decisions if d.engine == "ESN003" and d.flight >= 7)
+
+
 def test_units_and_names_of_a_table(tmp_path, db, plan):
     """A table with its own column names and units read through a channel map (degC, kPa, lb/s,
     N1 in percent) and one with units declared in its header give the native table's operating

@@ -588,6 +588,49 @@ def stuck_note(series: list[EngineSeries]) -> list[str]:
     return out
 
 
+#: a sensor that read nothing on this many of an engine's flights in a row (its latest: half as
+#: many), while it read on most of its other flights, is named (:func:`dead_note`)
+DEAD_FLIGHTS = 4
+
+
+def dead_note(series: list[EngineSeries]) -> list[str]:
+    """A line per channel that read nothing (no value as read, in any regime of flights with a
+    snapshot) on :data:`DEAD_FLIGHTS` flights of an engine in a row, or on its latest half as many,
+    while it read on most of the engine's other flights: a dead sensor, harness or bus word, which
+    the rows only list in ``missing`` while the diagnosis runs without it. An engine without that
+    sensor (another standard) reads nothing on most flights and is not named."""
+    by: dict[str, list] = {}
+    for es in series:
+        if es.raw is None or not es.flights:
+            continue
+        base = [c.split("@")[0] for c in es.channels]
+        flown = np.isfinite(es.raw).any(axis=1)
+        pos = np.flatnonzero(flown)
+        for c in dict.fromkeys(base):
+            cols = [j for j, b in enumerate(base) if b == c]
+            none = ~np.isfinite(es.raw[np.ix_(pos, cols)]).any(axis=1)
+            if none.sum() * 2 > pos.size:
+                continue
+            runs, start = [], None
+            for k, off in enumerate(list(none) + [False]):
+                if off and start is None:
+                    start = k
+                elif not off and start is not None:
+                    runs.append((start, k))
+                    start = None
+            for a, b in runs:
+                if b - a >= DEAD_FLIGHTS or (b == pos.size and 2 * (b - a) >= DEAD_FLIGHTS):
+                    by.setdefault(c, []).append((es.engine, es.flights[pos[a]].label, es.flights[pos[b - 1]].label,
+                                                 b - a, b == pos.size))
+    out = []
+    for c, hits in by.items():
+        where = few([f"{e} {lo} to {hi} ({k} flights{', its latest' if last else ''})" for e, lo, hi, k, last in hits], 3)
+        out.append(f"{c}: no value on {len(hits)} run(s) of flights of {len({h[0] for h in hits})} engine(s) "
+                   f"({where}) while it read on their other flights: a dead sensor, harness or bus word? "
+                   "Those flights are diagnosed without it (their rows list it in 'missing')")
+    return out
+
+
 #: a value off the model by more than this (beyond the largest deviation a fault gives in the
 #: simulated fleets, 7.5 %: :data:`GROSS_DEVIATION`) and within UNIT_FIT of it when read in the unit
 #: its channel's gross values point to is in that unit (:func:`read_in_other_units`)
@@ -2832,7 +2875,31 @@ def prepare(records: list[FlightRecord], db: GainDatabase) -> tuple[Signatures, 
     if not len(centers):
         raise DiagnosisError(f"no steady operating regime common to the flights ({len(records)} flights, "
                              f"{sum(len(r.snapshot) for r in records)} steady windows)")
+    for line in unread_note(records):
+        warnings.warn(PwlWarning(line), stacklevel=3)
     return sig, centers
+
+
+def unread_note(records: list[FlightRecord]) -> list[str]:
+    """A line naming the snapshots of a table (records of mode ``table``) that are in no regime
+    (:func:`assign_regimes`: an operating point fewer than its share of the flights flew, such as
+    take-off rows on two engines of a fleet reporting idle and cruise) and so not read; empty when
+    there are none. A flight log's windows outside the regimes (climb, descent) are not named:
+    they are most of its windows."""
+    out = []
+    for r in records:
+        if r.mode == "table":
+            read = set(r.windows.values())
+            out += [(r, w) for w in range(len(r.snapshot)) if w not in read]
+    if not out:
+        return []
+    r, w = out[0]
+    point = ", ".join(f"{n} {v:.6g}" for n, v in zip(r.snapshot.p_names, r.snapshot.p[w]))
+    return [f"{len(out)} snapshots of {len({r.engine for r, _ in out})} engines "
+            f"({few(sorted({r.engine for r, _ in out}), 3)}) are at an operating point too few flights share "
+            f"(the first: {r.source.rsplit(':row', 1)[0]}:row {int(r.snapshot.t0[w]) + 2}, {r.engine} "
+            f"{r.label} at {point}): not read "
+            "(a regime not every engine reports?)"]
 
 
 def diagnose_fleet(records: list[FlightRecord], db: GainDatabase,
@@ -2851,7 +2918,7 @@ def diagnose_fleet(records: list[FlightRecord], db: GainDatabase,
     series = [excluding(engine_series(v, sig, len(centers)), excluded.get(e, ()))
               for e, v in group_engines(records).items()]
     read_in_other_units(series, db.channel_units())
-    for line in gross_note(series, db.channel_units()) + stuck_note(series):
+    for line in gross_note(series, db.channel_units()) + stuck_note(series) + dead_note(series):
         warnings.warn(PwlWarning(line), stacklevel=2)
     Sigma = noise_covariance(series, cfg.floor)
     from .trending import detail_units

@@ -24,9 +24,9 @@ import numpy as np
 
 from ..database import GainDatabase
 from ..errors import PwlWarning
-from .diagnose import (DiagnosisConfig, Decision, FlightRecord, diagnose_engine, engine_series, excluding,
-                       fleet_norms, gross_note, group_engines, mark_excluded, noise_covariance, prepare,
-                       read_in_other_units, recoveries)
+from .diagnose import (DiagnosisConfig, Decision, FlightRecord, dead_note, diagnose_engine, engine_series,
+                       excluding, fleet_norms, gross_note, group_engines, mark_excluded, noise_covariance, prepare,
+                       read_in_other_units, recoveries, stuck_note)
 
 
 @dataclass
@@ -224,7 +224,7 @@ def engine_trend(records: list[FlightRecord], db: GainDatabase,
     series = [es] + [excluding(engine_series(v, sig, len(centers)), excluded.get(e, ()))
                      for e, v in group_engines(others).items()]
     read_in_other_units(series, db.channel_units())
-    for note in gross_note([es], db.channel_units()):
+    for note in gross_note([es], db.channel_units()) + stuck_note([es]) + dead_note([es]):
         warnings.warn(PwlWarning(note), stacklevel=2)
     wear = level = None
     if others:
