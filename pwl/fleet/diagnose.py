@@ -1228,9 +1228,9 @@ def fleet_norms(series: list[EngineSeries], Sigma: np.ndarray, cfg: DiagnosisCon
 #: the tail probability at which the fleet's level spread is widened for its estimation from a few
 #: engines (:func:`level_reference`): about alpha (1e-3) over the thousand tests of a flight
 LEVEL_TAIL = 1e-6
-#: an engine's baseline beyond this chi-square point of the fleet's spread is left out of it
-#: (:func:`level_reference`)
-LEVEL_KEEP = 0.999
+#: the chance that a healthy engine of the fleet is left out of its level reference (a Bonferroni
+#: bound over the engines, :func:`level_reference`)
+LEVEL_OFF = 0.05
 
 
 @dataclass
@@ -1246,18 +1246,70 @@ class FleetLevel:
     columns: np.ndarray
     health: np.ndarray
     rest: np.ndarray
+    common: np.ndarray
     wider: float
     floor: np.ndarray
     engines: int
     kept: int
+    names: list[str] = field(default_factory=list)          # the engines' serials, as ``baselines``
+    baselines: np.ndarray | None = None                     # (engines, m) their baselines, NaN: missing
+    noise: np.ndarray | None = None                         # (m, m) a baseline's own noise covariance
 
     def at(self, S: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(mean (k,), covariance (k, k)) of a healthy engine's baseline less its noise in the
         channels ``idx`` (k,) with signatures S (k, ncol): wider x (S_h diag(health) S_h^T +
         diag(rest)), each variance at least its floor."""
         Sh = S[:, self.columns]
-        B = self.wider * ((Sh * self.health) @ Sh.T + np.diag(self.rest[idx]))
+        B = self.wider * ((Sh * self.health) @ Sh.T + np.diag(self.rest[idx]) + self.common[np.ix_(idx, idx)])
         return self.mean[idx], B + np.diag(np.maximum(self.floor[idx] - np.diag(B), 0.0))
+
+    def off(self, engine: str, x: np.ndarray, S: np.ndarray, idx: np.ndarray, bank: list) -> set[str]:
+        """The names of the hypotheses of ``bank`` along which the baseline x (k,) of ``engine`` in
+        the channels ``idx`` (signatures S (k, ncol)) is off the other engines' baselines by their
+        own scatter (:func:`_fleet_outlier`), each estimated as the level test does (generalised
+        least squares against :meth:`at`'s covariance plus the noise): the spread above is a model
+        (health parameters, channels), and a healthy engine far in a direction it holds too little
+        of (a log fleet whose flight-to-flight scatter is a fraction of its engines' differences)
+        read a sensor level (a probe fleet's ESN016: 'sensor:Ps30 level', -5.5 kPa)."""
+        rows = [f for f, n in enumerate(self.names) if n != engine and np.all(np.isfinite(self.baselines[f, idx]))]
+        if len(rows) < 3:
+            return {h.name for h in bank}
+        mean, B = self.at(S, idx)
+        L = np.linalg.cholesky(B + self.noise[np.ix_(idx, idx)])
+        X = np.linalg.solve(L, (self.baselines[rows][:, idx] - mean).T)      # (k, others)
+        xe, SL = np.linalg.solve(L, x - mean), np.linalg.solve(L, S)
+        out = set()
+        for h in bank:
+            P = np.linalg.pinv(SL[:, h.columns])
+            if _fleet_outlier(P @ xe, (P @ X).T):
+                out.add(h.name)
+        return out
+
+
+#: the chance at which an engine's level estimate is off the other engines' (:func:`_fleet_outlier`)
+LEVEL_GUARD = 1e-3
+#: an engine's estimate beyond this many robust standard deviations of the others' in a component
+#: is left out of their spread (:func:`_fleet_outlier`)
+LEVEL_TRIM = 4.0
+
+
+def _fleet_outlier(theta: np.ndarray, others: np.ndarray) -> bool:
+    """Whether the estimate theta (r,) is off the other engines' ``others`` (n, r): those within
+    LEVEL_TRIM robust standard deviations of their median in every component give a mean and a
+    covariance, and theta is beyond their Hotelling prediction bound at LEVEL_GUARD ((n - r) n /
+    (r (n + 1) (n - 1)) d2 ~ F(r, n - r)). True when they cannot tell (n < r + 2)."""
+    r = theta.size
+    med = np.median(others, axis=0)
+    s = 1.4826 * np.median(np.abs(others - med), axis=0)
+    keep = np.all(np.abs(others - med) <= LEVEL_TRIM * np.where(s > 0.0, s, np.inf), axis=1)
+    n = int(keep.sum())
+    if n < r + 2:
+        return True
+    mu = others[keep].mean(axis=0)
+    C = np.atleast_2d(np.cov(others[keep].T))
+    d = theta - mu
+    d2 = float(d @ np.linalg.lstsq(C, d, rcond=None)[0])
+    return (n - r) * n / (r * (n + 1) * (n - 1)) * d2 > stats.f.ppf(1.0 - LEVEL_GUARD, r, n - r)
 
 
 def level_reference(series: list[EngineSeries], Sigma: np.ndarray,
@@ -1265,13 +1317,16 @@ def level_reference(series: list[EngineSeries], Sigma: np.ndarray,
     """The fleet's normal baseline when its engines' records begin: each engine's mean deviation
     over its first n_base + 1 complete flights (its baseline; engines with at least
     ``cfg.wear_flights`` of them, None with fewer than ``cfg.wear_engines``), their mean per
-    channel and their spread: the engine-to-engine variance of each health parameter and of each
-    channel beside them (calibrations, what the model does not hold), without the baselines' own
-    noise (Sigma / (n_base + 1)): :func:`_level_spread` fitted to a robust covariance of the
-    baselines, then to the covariance of the engines not off it (squared Mahalanobis distance
-    beyond the chi-square :data:`LEVEL_KEEP` point: a fault from the first flight), twice. An
-    engine whose baseline is off it (a fault before its first flight, an engine delivered or
-    repaired with a defect) has no step of its own to find.
+    channel and their spread: the engine-to-engine variance of each health parameter, of each
+    channel beside them (calibrations, what the model does not hold) and one of Sigma's shape,
+    without the baselines' own noise (Sigma / (n_base + 1)): :func:`_level_spread` fitted to a
+    robust covariance of the baselines, then to the covariance of the engines not off it (their
+    squared Mahalanobis distance, the spread first brought up to the engines' median distance
+    (:func:`_scaled`), beyond the chi-square point at :data:`LEVEL_OFF` over the engines: a fault
+    from the first flight), twice. An engine whose baseline is off it (a fault before its first
+    flight, an engine delivered or repaired with a defect) has no step of its own to find; it
+    must be off the other engines themselves too (:meth:`FleetLevel.off`), the spread being a
+    model.
 
     The spread was the robust spread of each engine's health estimate and, per channel, of what
     it left: the weakly seen health parameters' estimates are mostly their own noise (lpc_eff
@@ -1289,10 +1344,11 @@ def level_reference(series: list[EngineSeries], Sigma: np.ndarray,
     false 'level' rows on 9 of 12 engines; none with the floor)."""
     nb = cfg.n_base + 1
     cols = np.array([j for j, c in enumerate(series[0].columns) if not c.startswith(("sensor:", "gain:"))] if series else [])
-    V, Ss = [], []
+    V, Ss, names = [], [], []
     for es in series:
         ok, idx, _ = _usable(es, Sigma)
         if ok.sum() >= cfg.wear_flights:
+            names.append(es.engine)
             V.append(np.full(es.D.shape[1], np.nan))
             V[-1][idx] = es.D[ok][:nb][:, idx].mean(axis=0)
             Ss.append(np.nanmean(es.S[ok], axis=0))
@@ -1305,21 +1361,57 @@ def level_reference(series: list[EngineSeries], Sigma: np.ndarray,
         Sh = np.nan_to_num(np.nanmedian(np.array(Ss), axis=0)[:, cols])
         mean = np.nan_to_num(np.nanmedian(V, axis=0))
     noise = Sigma / nb
-    health, rest = _level_spread(_pairwise_robust(V - mean, have), Sh, noise)
+    X = np.where(have, V - mean, 0.0)
+    spread = _level_spread(_pairwise_robust(X, have), Sh, Sigma, noise)
     kept = np.ones(len(V), bool)
     for _ in range(2):
-        total = (Sh * health) @ Sh.T + np.diag(rest) + noise
-        X = np.where(have, V - mean, 0.0)
-        d2 = np.array([X[e, have[e]] @ np.linalg.solve(total[np.ix_(have[e], have[e])], X[e, have[e]])
-                       for e in range(len(V))])
-        kept = d2 <= stats.chi2.ppf(LEVEL_KEEP, np.maximum(have.sum(axis=1), 1))
+        # the spread brought up to the engines' median distance (the model of it holds the health
+        # parameters' directions, the channels and Sigma's shape; the rest of what engines differ
+        # by is in no one of them), then the engines beyond the Bonferroni point left out
+        between = _scaled(spread, Sh, Sigma, X, have, noise)
+        d2 = _distances(X, have, noise + between)
+        cut = stats.chi2.ppf(1.0 - LEVEL_OFF / len(V), np.maximum(have.sum(axis=1), 1))
+        kept = d2 <= cut
+        if kept.sum() * 2 < len(V):        # more than half off: the model, not the engines
+            kept = d2 / cut <= np.sort(d2 / cut)[(len(V) - 1) // 2]
         w = (kept[:, None] & have).astype(float)
         mean = np.where(w.sum(axis=0) > 0, np.sum(np.where(have, V, 0.0) * w, axis=0) / np.maximum(w.sum(axis=0), 1.0), mean)
-        Xw = np.where(have, V - mean, 0.0) * w
-        health, rest = _level_spread((Xw.T @ Xw) / np.maximum(w.T @ w - 1.0, 1.0), Sh, noise)
+        X = np.where(have, V - mean, 0.0)
+        Xw = X * w
+        spread = _level_spread((Xw.T @ Xw) / np.maximum(w.T @ w - 1.0, 1.0), Sh, Sigma, noise)
+    health, rest, common = spread
+    c = _scaled(spread, Sh, Sigma, X[kept], have[kept], noise, factor=True)
     n = int(kept.sum())
-    wider = stats.f.ppf(1.0 - LEVEL_TAIL, 1, max(n - 1, 1)) / stats.chi2.ppf(1.0 - LEVEL_TAIL, 1)
-    return FleetLevel(mean, cols, health, rest, float(wider), cfg.level_floor ** 2 * np.diag(Sigma), len(V), n)
+    wider = c * stats.f.ppf(1.0 - LEVEL_TAIL, 1, max(n - 1, 1)) / stats.chi2.ppf(1.0 - LEVEL_TAIL, 1)
+    return FleetLevel(mean, cols, health, rest, common * Sigma, float(wider), cfg.level_floor ** 2 * np.diag(Sigma),
+                      len(V), n, names, V, noise)
+
+
+def _distances(X: np.ndarray, have: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """(n,) each row's squared Mahalanobis distance against ``cov`` on its channels ``have``."""
+    return np.array([X[e, have[e]] @ np.linalg.solve(cov[np.ix_(have[e], have[e])], X[e, have[e]])
+                     for e in range(X.shape[0])])
+
+
+def _scaled(spread: tuple, Sh: np.ndarray, Sigma: np.ndarray, X: np.ndarray, have: np.ndarray,
+            noise: np.ndarray, factor: bool = False):
+    """The between-engine covariance of ``spread`` (health, rest, common of :func:`_level_spread`
+    with its Sh and Sigma) times the least factor c >= 1 that brings the rows of X (deviations
+    from the mean; ``have``: not missing) to a median squared Mahalanobis distance against noise +
+    c between at most the chi-square median of their channels (``factor``: c itself)."""
+    health, rest, common = spread
+    between = (Sh * health) @ Sh.T + np.diag(rest) + common * Sigma
+    med = stats.chi2.median(np.maximum(have.sum(axis=1), 1))
+
+    def over(c):
+        return float(np.median(_distances(X, have, noise + c * between) / med)) - 1.0
+    c = 1.0
+    if over(1.0) > 0.0 and np.any(between):
+        hi = 2.0
+        while over(hi) > 0.0 and hi < 1e6:
+            hi *= 2.0
+        c = optimize.brentq(over, hi / 2.0 if hi > 2.0 else 1.0, hi, xtol=1e-3, rtol=1e-3) if over(hi) <= 0.0 else hi
+    return c if factor else c * between
 
 
 def _pairwise_robust(X: np.ndarray, have: np.ndarray) -> np.ndarray:
@@ -1342,18 +1434,20 @@ def _pairwise_robust(X: np.ndarray, have: np.ndarray) -> np.ndarray:
     return C * np.outer(s, s)
 
 
-def _level_spread(C: np.ndarray, Sh: np.ndarray, noise: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(health (p,), rest (m,)) >= 0 with Sh diag(health) Sh^T + diag(rest) + noise nearest the
-    covariance C (m, m) of the baselines, Sh (m, p) the health signatures: non-negative least
-    squares on C's entries, each relative to its sampling error (sqrt(C_jj C_kk + C_jk^2): every
-    entry counts, not only the largest variances)."""
+def _level_spread(C: np.ndarray, Sh: np.ndarray, Sigma: np.ndarray, noise: np.ndarray) -> tuple:
+    """(health (p,), rest (m,), common) >= 0 with Sh diag(health) Sh^T + diag(rest) + common Sigma
+    + noise nearest the covariance C (m, m) of the baselines, Sh (m, p) the health signatures,
+    Sigma the flight-to-flight scatter: non-negative least squares on C's entries, each relative to
+    its sampling error (sqrt(C_jj C_kk + C_jk^2): every entry counts, not only the largest
+    variances)."""
     m, p = Sh.shape
     iu = np.triu_indices(m)
     d = np.maximum(np.diag(C), np.diag(noise))
     err = np.sqrt(d[iu[0]] * d[iu[1]] + C[iu] ** 2)
-    basis = [np.outer(Sh[:, j], Sh[:, j])[iu] for j in range(p)] + [(np.eye(m)[i][iu[0]] * (iu[0] == iu[1])) for i in range(m)]
+    basis = ([np.outer(Sh[:, j], Sh[:, j])[iu] for j in range(p)] +
+             [(np.eye(m)[i][iu[0]] * (iu[0] == iu[1])) for i in range(m)] + [Sigma[iu]])
     x = optimize.nnls(np.array(basis).T / err[:, None], (C - noise)[iu] / err)[0]
-    return x[:p], x[p:]
+    return x[:p], x[p: p + m], float(x[-1])
 
 
 @dataclass
@@ -1898,11 +1992,13 @@ def _stages(D, Wt, S, t, bank, cfg, wear, known, level=None, slope=None):
 
 def _level_fits(D, Wt, S, t, bank, cfg, level) -> list:
     """The fits (:func:`_fit_changes`) of the engine's baseline (its first n_base + 1 flights of
-    deviations D at flight numbers t) less the fleet's normal ``level`` (mean, covariance), with
+    deviations D at flight numbers t) less the fleet's normal ``level`` (mean, covariance, the
+    names of the hypotheses along which it is off the other engines: :meth:`FleetLevel.off`), with
     that covariance and no level nuisance: how it is off the fleet's from its first flight."""
-    mean, spread = level
+    mean, spread, off = level
     base = slice(0, cfg.n_base + 1)
-    return _fit_changes(D[base] - mean, Wt, S, t[base], t[:1], "step", bank, cfg, spread=spread, level=False)
+    return [f for f in _fit_changes(D[base] - mean, Wt, S, t[base], t[:1], "step", bank, cfg, spread=spread, level=False)
+            if bank[f[1]].name in off]
 
 
 def _calibration(D, Wt, S, t, bank, cfg, level, n_tests, columns) -> list[tuple[int, float]]:
@@ -2210,6 +2306,16 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
         (number >= a.onsets.get(es.engine, a.onset)) & (number < b.onsets.get(es.engine, b.onset)))]
     judged_first: set[int] = set()          # baselines (first) whose first flights were judged (:func:`_isolated`)
     undo = None                             # (row, first, found) before a recovery's new baseline
+    guard: dict = {}                        # (baseline rows, channels, hypotheses) -> FleetLevel.off
+
+    def fleet_level(idx, Sb, bank):
+        """(mean, covariance, names of the hypotheses off the other engines) of the fleet's level in
+        the channels idx (signatures Sb), for the engine's baseline of its first flights (rowsok)."""
+        rows = tuple(rowsok[: cfg.n_base + 1].tolist())
+        key = (rows, tuple(idx.tolist()), tuple(h.name for h in bank))
+        if key not in guard:
+            guard[key] = level.off(es.engine, es.D[list(rows)][:, idx].mean(axis=0), Sb, idx, bank)
+        return (*level.at(Sb, idx), guard[key])
     regime = np.array([c.split("@")[-1] for c in es.channels])
     for k in range(n):
         r = es.flights[k]
@@ -2278,7 +2384,8 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
             t = number[rowsok]
             Wt = whitening(Sigma, idx)
             if offsets is None and level is not None and first == 0:
-                offsets = _calibration(D, Wt, Sbar_all, t, bank, cfg, level.at(Sbar_all, idx), len(bank), es.columns)
+                offsets = _calibration(D, Wt, Sbar_all, t, bank, cfg, fleet_level(idx, Sbar_all, bank), len(bank),
+                                       es.columns)
             if offsets:
                 D = _calibrated(D, Sk, offsets, cfg.n_base + 1)
             D = _steadied(D, Sk, t, Wt, [f for f in found if f.onset >= number[first]], es.columns)
@@ -2331,7 +2438,7 @@ def diagnose_engine(es: EngineSeries, Sigma: np.ndarray, cfg: DiagnosisConfig = 
             slope = None if freed else trend
             normal = (trend if freed and trend is not None else wear.at(Sbar_all, idx)) if wear else None
             stages = _stages(D[u], Wt, Sbar_all, t[u], wide, cfg, normal, known,
-                             level.at(Sbar_all, idx) if level and first == 0 else None, slope)
+                             fleet_level(idx, Sbar_all, wide) if level and first == 0 else None, slope)
             every = [f for stage in stages for _, fits in stage for f in fits if f[1] < len(bank)]
             if every:
                 p_all = stats.chi2.sf([f[2] for f in every], [len(bank[f[1]].columns) for f in every]) * len(every)
@@ -2602,6 +2709,32 @@ def _episode_size(readings: np.ndarray) -> float:
     return float(np.median(readings[readings * np.sign(big) >= 0.5 * abs(big)]))
 
 
+#: the chance at which a sensor's readings since its first step scatter too much around one level
+#: to be one bias, and too little around two (on and off) not to be a bias that comes and goes
+#: (:func:`_two_states`)
+TWO_STATES_ALPHA = 1e-3
+
+
+def _two_states(b: np.ndarray, sd: float) -> bool:
+    """Whether a sensor's readings b (k,) on the flights since its first step (standard deviation
+    sd each) are a bias that comes and goes, however small against sd: around their mean they
+    scatter beyond chi-square's 1 - TWO_STATES_ALPHA point, read as on (at least half the bias
+    while on, :func:`_episode_size`, about their mean) or off (about none) within its
+    TWO_STATES_ALPHA point, and they go off and on again at least once. A T48 +20 K on every other
+    flight (8 per-flight standard deviations: below :data:`EPISODE_SEPARATION`) read a step of
+    +9 to +10 K, its first step's segment's mean, on 11 flights of a 30-engine table."""
+    k = b.size
+    if k < 3:
+        return False
+    size = _episode_size(b)
+    on = b * np.sign(size) >= 0.5 * abs(size)
+    if on.all() or not on.any() or np.sum(on[1:] & ~on[:-1]) < 1:
+        return False
+    one = float(np.sum((b - b.mean()) ** 2)) / sd ** 2
+    two = float(np.sum((b[on] - b[on].mean()) ** 2) + np.sum(b[~on] ** 2)) / sd ** 2
+    return one > stats.chi2.ppf(1.0 - TWO_STATES_ALPHA, k - 1) and two < stats.chi2.ppf(1.0 - TWO_STATES_ALPHA, k - 1)
+
+
 def _episodes(dec: Decision, found: list, seen: list, es: EngineSeries, rowsok, D, Wt, S, t, bank,
               cfg: DiagnosisConfig) -> np.ndarray:
     """A sensor bias that goes away, or comes and goes: relabel a detected step of a sensor class
@@ -2658,7 +2791,7 @@ def _episodes(dec: Decision, found: list, seen: list, es: EngineSeries, rowsok, 
 
     b = readings(after)
     ta, sd = tt[after], 1.0 / float(np.linalg.norm(w))
-    if abs(_episode_size(b)) >= EPISODE_SEPARATION * sd:
+    if abs(_episode_size(b)) >= EPISODE_SEPARATION * sd or _two_states(b, sd):
         cuts = ta
     else:
         again = {k.onset for k in found if k.cls == dec.cls and k.onset > begin}
