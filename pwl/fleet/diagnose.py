@@ -631,6 +631,68 @@ def dead_note(series: list[EngineSeries]) -> list[str]:
     return out
 
 
+#: a flight is named as another engine's (:func:`misfiled_note`) when it is off its engine's
+#: flights before it and after it beyond the chi-square point at MISFILED_ALPHA, and within the
+#: point at MISFILED_NEAR of another engine's flights around it (squared whitened distances)
+MISFILED_ALPHA = 1e-6
+MISFILED_NEAR = 0.99
+#: ... the flights before it and after it: up to this many on each side (at least 2)
+MISFILED_WIDTH = 5
+
+
+def _flights_near(es: EngineSeries, rows) -> tuple[np.ndarray | None, int]:
+    """(the channel-wise median (m,) of the engine's flights ``rows`` that have data, or None with
+    fewer than 2 of them; their number)."""
+    rows = [j for j in rows if 0 <= j < es.D.shape[0] and np.isfinite(es.D[j]).any()]
+    if len(rows) < 2:
+        return None, len(rows)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return np.nanmedian(es.D[rows], axis=0), len(rows)
+
+
+def misfiled_note(series: list[EngineSeries], Sigma: np.ndarray) -> list[str]:
+    """A line per flight that is another engine's by its snapshots: off its own engine's flights
+    before it and after it (beyond the chi-square point at :data:`MISFILED_ALPHA`, each) and within
+    the point at :data:`MISFILED_NEAR` of another engine's flights at the same place in its history
+    (a log filed in the wrong engine's folder, a table row under the wrong serial). Left as it is,
+    such a flight read a fault of its engine on that flight and the next and a 'recovery' after
+    them, and the engine started a new baseline there (a probe table: ESN020's flight 15 as
+    ESN012's)."""
+    out = []
+
+    def dist(x, near):
+        """x's squared whitened distance from a median of n flights, over its variance's share of
+        one flight's (a median of n normal values varies as pi / 2n of one), and the channels."""
+        ref, n = near
+        ok = np.isfinite(x) & np.isfinite(ref) if ref is not None else np.zeros(x.size, bool)
+        if ok.sum() < 2:
+            return -np.inf, 0
+        d = whitening(Sigma, np.flatnonzero(ok)) @ (x[ok] - ref[ok])
+        return float(d @ d) / (1.0 + np.pi / (2.0 * n)), int(ok.sum())
+
+    for es in series:
+        for k in range(es.D.shape[0]):
+            if not np.isfinite(es.D[k]).any():
+                continue
+            # off its own engine's flights before it and after it, each (a change between them is
+            # the engine's; a flight without two after it, the latest, is not judged: a fault found
+            # there and another engine's with the same fault read as that engine's)
+            d_own, m = min(dist(es.D[k], _flights_near(es, range(k - MISFILED_WIDTH, k))),
+                           dist(es.D[k], _flights_near(es, range(k + 1, k + 1 + MISFILED_WIDTH))))
+            if not (np.isfinite(d_own) and d_own > stats.chi2.ppf(1.0 - MISFILED_ALPHA, max(m, 1))):
+                continue
+            best = min(((d, n, other.engine) for other in series if other is not es
+                        for d, n in [dist(es.D[k], _flights_near(other, range(k - MISFILED_WIDTH, k + MISFILED_WIDTH + 1)))]
+                        if n), default=(np.inf, 0, ""))
+            if best[0] <= stats.chi2.ppf(MISFILED_NEAR, max(best[1], 1)):
+                out.append(f"{es.flights[k].source}: engine {es.engine}'s {es.flights[k].label} is {best[2]}'s by its "
+                           f"snapshots (distance {best[0]:.3g} from {best[2]}'s flights around it, {d_own:.3g} from "
+                           f"{es.engine}'s): a log or row filed under the wrong engine? Diagnosed as {es.engine}'s "
+                           f"(--exclude {es.engine}:{int(flight_numbers(es)[k])} leaves it out)")
+    return out
+
+
 #: a value off the model by more than this (beyond the largest deviation a fault gives in the
 #: simulated fleets, 7.5 %: :data:`GROSS_DEVIATION`) and within UNIT_FIT of it when read in the unit
 #: its channel's gross values point to is in that unit (:func:`read_in_other_units`)
@@ -1237,8 +1299,8 @@ LEVEL_OFF = 0.05
 class FleetLevel:
     """A fleet's normal baseline level (:func:`level_reference`): per deviation channel the mean
     of the engines kept ``mean`` (m,); the engine-to-engine variances of the health parameters
-    ``columns`` (signature columns) ``health`` and of each channel beside them ``rest`` (m,),
-    without the baselines' own noise; ``wider`` the factor they are widened by for their
+    ``columns`` (signature columns) ``health``, of each channel beside them ``rest`` (m,) and
+    ``common`` (m, m, a multiple of the flight-to-flight scatter), without the baselines' own noise; ``wider`` the factor they are widened by for their
     estimation from the ``kept`` of ``engines`` engines (the others off it), ``floor`` (m,) the
     least variance per channel."""
 
@@ -1258,7 +1320,7 @@ class FleetLevel:
     def at(self, S: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(mean (k,), covariance (k, k)) of a healthy engine's baseline less its noise in the
         channels ``idx`` (k,) with signatures S (k, ncol): wider x (S_h diag(health) S_h^T +
-        diag(rest)), each variance at least its floor."""
+        diag(rest) + common), each variance at least its floor."""
         Sh = S[:, self.columns]
         B = self.wider * ((Sh * self.health) @ Sh.T + np.diag(self.rest[idx]) + self.common[np.ix_(idx, idx)])
         return self.mean[idx], B + np.diag(np.maximum(self.floor[idx] - np.diag(B), 0.0))
@@ -3054,6 +3116,8 @@ def diagnose_fleet(records: list[FlightRecord], db: GainDatabase,
     for line in gross_note(series, db.channel_units()) + stuck_note(series) + dead_note(series):
         warnings.warn(PwlWarning(line), stacklevel=2)
     Sigma = noise_covariance(series, cfg.floor)
+    for line in misfiled_note(series, Sigma):
+        warnings.warn(PwlWarning(line), stacklevel=2)
     from .trending import detail_units
     wear, level = fleet_norms(series, Sigma, cfg, detail_units(db))
     executor = executor or SerialExecutor()
