@@ -1413,7 +1413,8 @@ def level_reference(series: list[EngineSeries], Sigma: np.ndarray,
             names.append(es.engine)
             V.append(np.full(es.D.shape[1], np.nan))
             V[-1][idx] = es.D[ok][:nb][:, idx].mean(axis=0)
-            Ss.append(np.nanmean(es.S[ok], axis=0))
+            Ss.append(np.full(es.S.shape[1:], np.nan))
+            Ss[-1][idx] = np.mean(es.S[ok][:, idx], axis=0)      # (a channel the engine lacks: NaN)
     if len(V) < cfg.wear_engines or cols.size == 0:
         return None
     V = np.array(V)
