@@ -209,6 +209,28 @@ def test_a_fleet_of_two_instrumentation_standards_has_its_references():
     assert np.all(np.abs(lev.mean) <= 3 * np.sqrt((spread + sd ** 2 / (cfg.n_base + 1)) / 6))
 
 
+def test_a_fleet_wide_step_too_small_for_any_engine_is_found_on_the_fleet_pooled():
+    """Sensor C +0.2 unit (2e-3, two flight-to-flight sd) on every one of 24 engines from flight 8
+    of 16: no engine's own test finds it (engine_steps: with its level and wear line, a step of
+    about 2 of its standard errors), the fleet's pooled does (the engines' median step): one common
+    step at 8, sensor C, +0.2 within 30 %. Without it, none. Before, nothing named it and each
+    engine's wear line took it in. (min_step 5e-4: the change is at the default 2e-3.)"""
+    from pwl.fleet.diagnose import common_steps, engine_steps
+    S = synthetic_signatures()
+    sd, cfg = 1e-3, DiagnosisConfig(min_step=5e-4)
+    Sigma = np.eye(6) * sd ** 2
+    for size in (0.2, 0.0):
+        out = [series(stepped(300 + e, 16, [("sensor:C", [size], 8)], sd=sd)[0], S, engine=f"E{e}") for e in range(24)]
+        assert not any(engine_steps(es.D, np.eye(6) / sd, np.arange(16.0), cfg) for es in out)
+        found = common_steps(out, Sigma, cfg)
+        if not size:
+            assert found == []
+            continue
+        (c,) = found
+        assert (c.onset, c.cls, c.eligible, len(c.engines)) == (8, "sensor:C", 24, 24)
+        assert float(c.detail.split("=")[1]) == pytest.approx(size, rel=0.3)
+
+
 @pytest.mark.parametrize("cls,theta", [("fan", [-0.02, -0.01]), ("hpt", [-0.015, 0.008]),
                                        ("sensor:B", [0.8]), ("sensor:C", [-1.5])])
 def test_a_step_is_detected_isolated_and_sized(cls, theta):

@@ -1219,7 +1219,82 @@ def common_steps(series: list[EngineSeries], Sigma: np.ndarray,
     found = [c for c in (common(at[tau]) for tau in sorted(at) if 2 * len(at[tau]) > len(eng))
              if 2 * c.alike > len(eng)]
     rest = [s for s in isolated if 2 * len(at[s[1]]) <= len(eng)]
-    return found + [common(w, rollout=True) for w in _rollouts(rest, len(eng), cfg.rollout)]
+    found += [common(w, rollout=True) for w in _rollouts(rest, len(eng), cfg.rollout)]
+    pooled = _pooled_step(eng, bank, cfg, series[0].columns, {c.onset for c in found})
+    return found + ([pooled] if pooled is not None else [])
+
+
+#: a change of the whole fleet too small for any one engine's test (:func:`_pooled_step`) must show,
+#: along its fitted change, on at least this share of the engines
+POOLED_SHARE = 2.0 / 3.0
+
+
+def _pooled_step(eng: list, bank: list[Hypothesis], cfg: DiagnosisConfig, columns: list[str],
+                 known: set) -> CommonStep | None:
+    """A step every engine shows alike at one flight number, found on the fleet pooled, not on
+    any one engine (a T48 recalibration of +3 K from flight 15, a tenth of a sensor's noise: its
+    share of every engine's wear line made the fleet's normal wear a fan efficiency gaining
+    0.1 %/flight, and nothing named it). ``eng``: (series, deviations D (n, k), whitening Wt, flight
+    numbers t, signatures S, its own steps) of the engines judged (:func:`common_steps`); those
+    with every channel count. At each flight number (not one of ``known``), each engine's step
+    off its level, a wear curve (line and curvature: wear that levels off made a fleet-wide 'step'
+    otherwise) and its own steps (an engine with one within a flight of it left out), the median
+    of the engines' steps per channel (robust to a few engines' faults there), against its
+    variance (pi / 2 of their mean's); the largest likelihood gain, chi-square with as many
+    degrees of freedom as channels, Bonferroni over the flight numbers, below ``cfg.alpha`` and at
+    least ``cfg.min_step``, shown along the pooled step on :data:`POOLED_SHARE` of the engines: a
+    :class:`CommonStep` of every such engine, isolated as the bank's hypothesis with the largest
+    T - cost."""
+    m = max(D.shape[1] for _, D, _, _, _, _ in eng)
+    full = [e for e in eng if e[1].shape[1] == m]
+    if len(full) < cfg.wear_engines:
+        return None
+    taus = sorted({float(x) for _, _, _, t, _, _ in full for x in t[2:-1]} - set(known))
+    Wt = full[0][2]
+    best = (-1.0, None, None, None)
+    for tau in taus:
+        each, w = [], []
+        for _, D, _, t, _, own in full:
+            if any(abs(o - tau) <= 1 for o in own):
+                continue                  # its own change there: not the fleet's to judge by
+            u = (t - t.mean()) / max(float(np.ptp(t)), 1.0)
+            X = np.column_stack([np.ones_like(t), u, u ** 2] + [(t >= o).astype(float) for o in own])
+            f = (t >= tau).astype(float)
+            g = f - X @ (np.linalg.pinv(X) @ f)
+            g2 = float(g @ g)
+            if g2 < 1e-9:
+                continue
+            each.append(D.T @ g / g2)
+            w.append(g2)
+        if 2 * len(each) <= len(full):
+            continue
+        # the engines' median step, per channel: a few engines' faults near it do not make it
+        delta = np.median(np.array(each), axis=0)
+        den = len(each) / (np.pi / 2.0 * float(np.mean(1.0 / np.array(w))))
+        E = den * float(np.sum((Wt @ delta) ** 2))
+        if E > best[0]:
+            best = (E, tau, delta, (den, each))
+    E, tau, delta, rest = best
+    if tau is None:
+        return None
+    den, each = rest
+    p = float(stats.chi2.sf(E, m)) * len(taus)
+    shown = np.mean([float((Wt @ d) @ (Wt @ delta)) > 0.0 for d in each])
+    if not (p < cfg.alpha and np.linalg.norm(delta) >= cfg.min_step and shown >= POOLED_SHARE):
+        return None
+    S = np.median(np.array([e[4] for e in full]), axis=0)
+    v = np.sqrt(den) * (Wt @ delta)
+    fits = []
+    for i, h in enumerate(bank):
+        if not _testable(h, S):
+            continue
+        A = np.sqrt(den) * (Wt @ S[:, h.columns])
+        th = np.linalg.lstsq(A, v, rcond=None)[0]
+        fits.append((float(v @ (A @ th)) - h.cost(cfg), i, th))
+    _, hi, th = max(fits, key=lambda f: f[0])
+    detail = " ".join(f"{columns[c]}={x:+.5g}" for c, x in zip(bank[hi].columns, th))
+    names = [e[0].engine for e in full]
+    return CommonStep(tau, names, len(eng), bank[hi].name, len(names), detail, {n: tau for n in names}, False, th)
 
 
 def _common(steps: list, eligible: int, bank: list[Hypothesis], columns: list[str],
@@ -1269,6 +1344,10 @@ def fleet_norms(series: list[EngineSeries], Sigma: np.ndarray, cfg: DiagnosisCon
     holds such a step only when it is among those flights, and then on every engine alike."""
     steps = fleet_steps(series, Sigma, cfg)
     common = common_steps(series, Sigma, cfg, steps)
+    for c in common:               # (one found pooled, on no engine by itself: in every engine's wear)
+        for e, o in c.onsets.items():
+            if e in steps and o not in steps[e]:
+                steps[e] = steps[e] + [o]
     away = _fleet_excursions(common)
     from .trending import readable_detail
     for a, b in away:
