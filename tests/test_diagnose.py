@@ -732,7 +732,7 @@ def test_a_level_must_be_off_the_other_engines_not_only_off_the_model_of_their_s
     V = rng.normal(0.0, 0.01, (20, 1)) * S[:, 1] + rng.normal(0.0, sd / 2, (20, 6))
     mean = V.mean(axis=0)
     tight = FleetLevel(mean, np.arange(4), np.zeros(4), np.zeros(6), np.zeros((6, 6)), 1.0, np.full(6, 1e-12),
-                       20, 20, [f"F{e}" for e in range(20)], V, np.eye(6) * sd ** 2 / nb)
+                       20, [f"F{e}" for e in range(20)], V, np.eye(6) * sd ** 2 / nb)
     bank = hypotheses(COLUMNS)
     spread = float(np.std(V @ np.linalg.pinv(S[:, 1:2]).T))
     for k, found in ((1.5, False), (10.0, True)):

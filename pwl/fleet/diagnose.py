@@ -789,6 +789,12 @@ def gross_note(series: list[EngineSeries], units: dict) -> list[str]:
     return out
 
 
+def robust_sd(X: np.ndarray, axis=0) -> np.ndarray:
+    """1.4826 x the median absolute deviation of X along ``axis`` (NaN left out): a normal
+    sample's standard deviation, robust to a share of outliers below a half."""
+    return 1.4826 * np.nanmedian(np.abs(X - np.nanmedian(X, axis=axis, keepdims=True)), axis=axis)
+
+
 def noise_covariance(series: list[EngineSeries], floor: float) -> np.ndarray:
     """Flight-to-flight scatter Sigma (m, m) of the deviations.
 
@@ -829,7 +835,7 @@ def noise_covariance(series: list[EngineSeries], floor: float) -> np.ndarray:
         # start from the channels' median absolute differences, not from the covariance of all
         # differences: a few noisy or intermittently faulty engines (a fifth of the differences)
         # inflated that start 4-17x and nothing was then far enough out to be trimmed
-        mad = 1.4826 * np.median(np.abs(X - np.median(X, axis=0)), axis=0)
+        mad = robust_sd(X)
         md = np.sum((X / np.maximum(mad, 1e-300)) ** 2, axis=1)
         cut = stats.chi2.ppf(0.999, m)
         def enough(keep):           # the channels' differences are correlated: keep at least 2 m
@@ -871,7 +877,7 @@ def _shrunk_covariance(X: np.ndarray) -> np.ndarray:
     if not X.shape[0]:
         return np.zeros((m, m))
     med = np.nanmedian(X, axis=0)
-    mad = np.nan_to_num(1.4826 * np.nanmedian(np.abs(X - med), axis=0))
+    mad = np.nan_to_num(robust_sd(X))
     C = np.diag(mad ** 2)
     Z = (X - med) / np.maximum(mad, 1e-300)
     ok = np.isfinite(Z)
@@ -1024,7 +1030,7 @@ def _fleet_norm(series: list[EngineSeries], Sigma: np.ndarray, cfg: "DiagnosisCo
         return None
     def robust(V):
         med = np.nanmedian(V, axis=0)
-        return med, 1.4826 * np.nanmedian(np.abs(V - med), axis=0)
+        return med, robust_sd(V)
     med, spread = robust(np.array(vals))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)      # a channel no engine of the fleet has
@@ -1390,11 +1396,15 @@ class FleetLevel:
     common: np.ndarray
     wider: float
     floor: np.ndarray
-    engines: int
     kept: int
-    names: list[str] = field(default_factory=list)          # the engines' serials, as ``baselines``
-    baselines: np.ndarray | None = None                     # (engines, m) their baselines, NaN: missing
-    noise: np.ndarray | None = None                         # (m, m) a baseline's own noise covariance
+    names: list[str]               # the engines' serials, as ``baselines``
+    baselines: np.ndarray          # (engines, m) their baselines, NaN: missing
+    noise: np.ndarray              # (m, m) a baseline's own noise covariance
+
+    @property
+    def engines(self) -> int:
+        """How many engines' baselines the reference was made from (``kept`` of them kept)."""
+        return len(self.names)
 
     def at(self, S: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(mean (k,), covariance (k, k)) of a healthy engine's baseline less its noise in the
@@ -1441,7 +1451,7 @@ def _fleet_outlier(theta: np.ndarray, others: np.ndarray) -> bool:
     (r (n + 1) (n - 1)) d2 ~ F(r, n - r)). True when they cannot tell (n < r + 2)."""
     r = theta.size
     med = np.median(others, axis=0)
-    s = 1.4826 * np.median(np.abs(others - med), axis=0)
+    s = robust_sd(others)
     keep = np.all(np.abs(others - med) <= LEVEL_TRIM * np.where(s > 0.0, s, np.inf), axis=1)
     n = int(keep.sum())
     if n < r + 2:
@@ -1526,7 +1536,7 @@ def level_reference(series: list[EngineSeries], Sigma: np.ndarray,
     n = int(kept.sum())
     wider = c * stats.f.ppf(1.0 - LEVEL_TAIL, 1, max(n - 1, 1)) / stats.chi2.ppf(1.0 - LEVEL_TAIL, 1)
     return FleetLevel(mean, cols, health, rest, common * Sigma, float(wider), cfg.level_floor ** 2 * np.diag(Sigma),
-                      len(V), n, names, V, noise)
+                      n, names, V, noise)
 
 
 def _distances(X: np.ndarray, have: np.ndarray, cov: np.ndarray) -> np.ndarray:
@@ -1563,7 +1573,7 @@ def _pairwise_robust(X: np.ndarray, have: np.ndarray) -> np.ndarray:
     (Gnanadesikan and Kettenring); robust to a share of outlying rows below a half, not positive
     semi-definite in general."""
     def scale(x):
-        return 1.4826 * float(np.median(np.abs(x - np.median(x)))) if x.size >= 3 else 0.0
+        return float(robust_sd(x)) if x.size >= 3 else 0.0
     m = X.shape[1]
     s = np.array([scale(X[have[:, j], j]) for j in range(m)])
     s = np.where(s > 0.0, s, 1.0)
