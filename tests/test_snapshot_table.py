@@ -14,7 +14,7 @@ from pwl.cli import main
 from pwl.database import GainDatabase
 from pwl.demo_data import demo_paths
 from pwl.errors import PwlWarning
-from pwl.fleet.diagnose import diagnose_fleet, engine_named
+from pwl.fleet.diagnose import diagnose_fleet, engine_named, prepare
 from pwl.fleet.signatures import DiagnosisError
 from pwl.fleet.snapshot_table import read_snapshot_table
 
@@ -232,9 +232,13 @@ def test_a_table_without_what_it_needs_is_refused(tmp_path, db, plan, drop, matc
         read_snapshot_table(write_table(tmp_path / "t.csv", rows), db)
 
 
-def test_a_table_without_a_sensor_reads_it_missing(tmp_path, db, plan):
-    rows = [{k: v for k, v in r.items() if k != "P15"} for r in table_rows(plan)[:8]]
-    with pytest.warns(PwlWarning, match="no column for P15"):
+@pytest.mark.parametrize("empty, said", [(False, "no column for P15"),
+                                         (True, "column 'P15' holds no value in any of the table's 16 rows")])
+def test_a_table_without_a_sensor_reads_it_missing(tmp_path, db, plan, empty, said):
+    """Without the column, or with a column the export left empty (said: it was not, before)."""
+    rows = [{k: (float("nan") if empty and k == "P15" else v) for k, v in r.items() if empty or k != "P15"}
+            for r in table_rows(plan)[:16]]
+    with pytest.warns(PwlWarning, match=said):
         recs = read_snapshot_table(write_table(tmp_path / "t.csv", rows), db)
     j = recs[0].snapshot.channels.index("P15")
     assert np.isnan(recs[0].snapshot.mean[:, j]).all() and not recs[0].snapshot.finite[:, j].any()
@@ -785,3 +789,27 @@ def test_a_flight_sent_twice_with_other_values_is_named(tmp_path, db, plan, recw
     read_snapshot_table(write_table(tmp_path / "twice.csv", rows), db)
     said = [str(w.message) for w in recwarn.list if "two rows at one operating point" in str(w.message)]
     assert len(said) == 1 and f"engine {e} flight 8, rows {at + 2} and {len(rows) + 1}, T48" in said[0], said
+    assert "sent twice and corrected" in said[0] and "one serial" not in said[0], said
+
+
+def test_two_engines_under_one_serial_and_a_scheduling_channel_missing_are_named(tmp_path, db, plan, recwarn):
+    """ESN012's rows filed as ESN011's (every flight then holds two rows per operating point): the
+    warning said 'a flight sent twice and corrected?' and the rows left out were named again as
+    'at an operating point too few flights share'; now it names two engines under one serial,
+    once. ESN010's altitude in feet on its cruise rows (read missing, implausible): those rows
+    have no operating point and are named as such, not as a rare regime."""
+    rows = table_rows(plan, 5)
+    for r in rows:
+        if r["engine"] == "ESN012":
+            r["engine"] = "ESN011"
+        if r["engine"] == "ESN010" and r["alt"] > 0:
+            r["alt"] = r["alt"] / 0.3048
+    recwarn.clear()
+    prepare(read_snapshot_table(write_table(tmp_path / "t.csv", rows), db), db)
+    said = [str(w.message) for w in recwarn.list]
+    twice = [m for m in said if "two rows at one operating point" in m]
+    assert len(twice) == 1 and f"two engines' rows under one serial (ESN011: {FLIGHTS} of its {FLIGHTS} flights)" \
+        in twice[0], said
+    assert not [m for m in said if "too few flights share" in m], said
+    blind = [m for m in said if "have no operating point" in m]
+    assert len(blind) == 1 and blind[0].startswith(f"{FLIGHTS} snapshots of 1 engines (ESN010)"), said

@@ -206,6 +206,7 @@ class FlightRecord:
     database_digest: str = ""
     mode: str = ""
     windows: dict = field(default_factory=dict)     # regime -> window index (assign_regimes)
+    unplaced: list = field(default_factory=list)    # windows in no regime (assign_regimes)
 
     @property
     def time(self) -> float:
@@ -451,7 +452,8 @@ def assign_regimes(records: list[FlightRecord], spans, radius: float = 0.35, min
     Operating points are scaled by ``spans`` (np,); windows are taken longest first and join the
     nearest regime within ``radius`` (scaled distance) or start a new one. Regimes seen in fewer
     than ``min_share`` of the flights are dropped. Sets each record's ``windows`` (regime ->
-    its longest window there) and returns the regime centres (R, np), lowest power first."""
+    its longest window there) and ``unplaced`` (its windows in no regime kept, or without an
+    operating point) and returns the regime centres (R, np), lowest power first."""
     spans = np.asarray(spans, dtype=np.float64)
     wins = [(int(s), i, w) for i, r in enumerate(records) for w, s in enumerate(r.snapshot.samples)]
     wins.sort(key=lambda x: -x[0])
@@ -469,11 +471,15 @@ def assign_regimes(records: list[FlightRecord], spans, radius: float = 0.35, min
         members[j].append((i, w))
     keep = [j for j in range(len(centers)) if len({i for i, _ in members[j]}) >= min_share * len(records)]
     keep.sort(key=lambda j: float(np.sum(centers[j])))
+    placed = set()
     for r in records:
         r.windows = {}
     for new, j in enumerate(keep):
         for i, w in members[j]:          # longest first, so the first one seen per flight stays
             records[i].windows.setdefault(new, w)
+            placed.add((i, w))
+    for i, r in enumerate(records):
+        r.unplaced = [w for w in range(len(r.snapshot)) if (i, w) not in placed]
     return np.array([centers[j] * spans for j in keep]).reshape(len(keep), spans.size)
 
 
@@ -3158,33 +3164,41 @@ def prepare(records: list[FlightRecord], db: GainDatabase) -> tuple[Signatures, 
             "one's trims, their filter health is the other's (run them again to match)"), stacklevel=2)
     centers = assign_regimes(records, db.p_spans())
     if not len(centers):
+        placed = sum(int(np.all(np.isfinite(r.snapshot.p), axis=1).sum()) for r in records)
+        why = "" if placed else (f": none has an operating point ({', '.join(db.names['p'])}; a channel they are "
+                                 "computed from is missing or implausible throughout, see the warnings above)")
         raise DiagnosisError(f"no steady operating regime common to the flights ({len(records)} flights, "
-                             f"{sum(len(r.snapshot) for r in records)} steady windows)")
+                             f"{sum(len(r.snapshot) for r in records)} steady windows{why})")
     for line in unread_note(records):
         warnings.warn(PwlWarning(line), stacklevel=3)
     return sig, centers
 
 
 def unread_note(records: list[FlightRecord]) -> list[str]:
-    """A line naming the snapshots of a table (records of mode ``table``) that are in no regime
+    """Lines naming the snapshots of a table (records of mode ``table``) that are in no regime
     (:func:`assign_regimes`: an operating point fewer than its share of the flights flew, such as
-    take-off rows on two engines of a fleet reporting idle and cruise) and so not read; empty when
-    there are none. A flight log's windows outside the regimes (climb, descent) are not named:
+    take-off rows on two engines of a fleet reporting idle and cruise; or none, a scheduling
+    channel missing) and so not read; empty when there are none. A flight log's windows outside the regimes (climb, descent) are not named:
     they are most of its windows."""
-    out = []
+    rare, blind = [], []
     for r in records:
         if r.mode == "table":
-            read = set(r.windows.values())
-            out += [(r, w) for w in range(len(r.snapshot)) if w not in read]
-    if not out:
-        return []
-    r, w = out[0]
-    point = ", ".join(f"{n} {v:.6g}" for n, v in zip(r.snapshot.p_names, r.snapshot.p[w]))
-    return [f"{len(out)} snapshots of {len({r.engine for r, _ in out})} engines "
-            f"({few(sorted({r.engine for r, _ in out}), 3)}) are at an operating point too few flights share "
-            f"(the first: {r.source.rsplit(':row', 1)[0]}:row {int(r.snapshot.t0[w]) + 2}, {r.engine} "
-            f"{r.label} at {point}): not read "
-            "(a regime not every engine reports?)"]
+            for w in r.unplaced:
+                (rare if np.all(np.isfinite(r.snapshot.p[w])) else blind).append((r, w))
+    out = []
+    for hits, what, why in ((rare, "are at an operating point too few flights share", "a regime not every engine "
+                             "reports?"),
+                            (blind, f"have no operating point ({', '.join(records[0].snapshot.p_names)}: a "
+                             "channel they are computed from is missing there)", "a unit mistake? see above")):
+        if not hits:
+            continue
+        r, w = hits[0]
+        point = ", ".join(f"{n} {v:.6g}" for n, v in zip(r.snapshot.p_names, r.snapshot.p[w]))
+        engines = sorted({r.engine for r, _ in hits}, key=_natural)
+        out.append(f"{len(hits)} snapshots of {len(engines)} engines ({few(engines, 3)}) {what} (the first: "
+                   f"{r.source.rsplit(':row', 1)[0]}:row {int(r.snapshot.t0[w]) + 2}, {r.engine} {r.label}"
+                   f"{' at ' + point if hits is rare else ''}): not read ({why})")
+    return out
 
 
 def diagnose_fleet(records: list[FlightRecord], db: GainDatabase,

@@ -56,6 +56,7 @@ from ..logs import LogError, _from_columns, _split_header, csv_frame, excel_fram
 from ..snapshots import Snapshots
 from ..units import implausible_hint
 from .diagnose import FlightRecord, _natural, assign_regimes, flight_seconds, one_spelling, whole_number
+from .scoring import few
 from .signatures import DiagnosisError
 
 ENGINE_NAMES = ("engine", "esn", "serial", "engine_serial")
@@ -286,6 +287,10 @@ def _record(path, db, chans, X, P, count, numbers, engine, fl, tm, rows) -> Flig
 #: two rows of one engine and flight number whose operating points are within this share of
 #: every scheduling axis's span are one snapshot sent twice (:func:`_warn_twice`)
 TWICE_SHARE = 0.02
+#: an engine with two different rows at one operating point on at least this share of its flights
+#: (and this many) holds two engines' histories under one serial (:func:`_warn_twice`)
+TWINNED_SHARE = 0.5
+TWINNED_FLIGHTS = 3
 
 
 def _warn_twice(path, flights: list[tuple], P: np.ndarray, X: np.ndarray, chans: list[str]) -> None:
@@ -305,14 +310,23 @@ def _warn_twice(path, flights: list[tuple], P: np.ndarray, X: np.ndarray, chans:
                         rel = np.abs(X[b] / X[a] - 1.0)
                     j = int(np.nanargmax(np.where(np.isfinite(rel), rel, -1.0)))
                     hits.append((e, fl, a, b, chans[j], float(rel[j])))
-    if hits:
-        e, fl, a, b, c, r = hits[0]
-        warnings.warn(PwlWarning(
-            f"{path}: {len(hits)} flight(s) hold two rows at one operating point with different values (the first: "
-            f"engine {e} flight {fl}, rows {a + 2} and {b + 2}, {c} {100 * r:.2g} % apart): of each pair the row "
-            "with more readings (else the first) is read and the other left out (a flight sent twice and "
-            "corrected? remove the stale row)"),
-            stacklevel=3)
+    if not hits:
+        return
+    e, fl, a, b, c, r = hits[0]
+    flown: dict[str, int] = {}
+    for f in flights:
+        flown[f[0]] = flown.get(f[0], 0) + 1
+    twinned = {h[0]: len({x[1] for x in hits if x[0] == h[0]}) for h in hits}
+    # two rows on (nearly) every flight of a serial are two engines' histories, not one corrected flight
+    shared = [x for x, k in twinned.items() if k >= TWINNED_FLIGHTS and k >= TWINNED_SHARE * flown[x]]
+    why = (f"two engines' rows under one serial ({few(shared, 3)}: {twinned[shared[0]]} of its "
+           f"{flown[shared[0]]} flights)? give each engine its own serial" if shared else
+           "a flight sent twice and corrected? remove the stale row")
+    warnings.warn(PwlWarning(
+        f"{path}: {len({(x[0], x[1]) for x in hits})} flight(s) hold two rows at one operating point with different "
+        f"values (the first: engine {e} flight {fl}, rows {a + 2} and {b + 2}, {c} {100 * r:.2g} % apart): of each "
+        f"pair the row with more readings (else the first) is read and the other left out ({why})"),
+        stacklevel=3)
 
 
 def _numbered_flights(column: dict, keep: np.ndarray) -> list[tuple]:
@@ -410,6 +424,12 @@ def _channels(path, columns: list[tuple], db: GainDatabase, channel_map) -> tupl
     if absent:
         warnings.warn(PwlWarning(f"{path}: no column for {', '.join(absent)}: missing on every snapshot "
                                  "(an engine standard without it?)"), stacklevel=3)
+    empty = [c for j, c in enumerate(chans) if c not in absent and np.isnan(X[:, j]).all()
+             and not (derive and c == inlet[1])]
+    if empty and n:
+        warnings.warn(PwlWarning(f"{path}: column{'s' if len(empty) > 1 else ''} {', '.join(map(repr, empty))} "
+                                 f"hold{'' if len(empty) > 1 else 's'} no value in any of the table's {n} rows: missing on "
+                                 "every snapshot (not recorded, or a column the export left empty?)"), stacklevel=3)
     return chans, _plausible(path, X, chans, db, log.units)
 
 
