@@ -635,6 +635,26 @@ def test_a_component_drift_from_mid_history_is_found_against_the_fleets_wear(tmp
         [(d.flight, d.cls, d.kind, d.onset) for d in got]
 
 
+def test_a_slow_sensor_drift_from_mid_history_is_found(tmp_path, db):
+    """The seed-11 fleet's ESN015 (healthy; five readings a snapshot; 40 flights) with its logged
+    P50 drifting +0.05 %/flight from flight 8 (a sixth of its flight-to-flight scatter a flight),
+    diagnosed with 11 other engines: named a P50 drift with an onset within 3 flights of 8 on at
+    least 10 of flights 28-39 (1-1.6 % off), nothing before flight 8. Before, a sensor's drift
+    slower than min_rate (0.1 %/flight over the channels) was never named, whatever it had added
+    up to (and nothing else was: the drift was the best fit, then too slow)."""
+    p = fleet.plan_fleet(40, 40, seed=11)
+    keep = [p.serial.index(e) for e in ["ESN015"] + [f"ESN{k:03d}" for k in range(24, 35)]]
+    rows = [r for i in keep for j in range(p.flights) for r in fleet.snapshot_rows(p, i, j, 5)]
+    for r in rows:
+        if r["engine"] == "ESN015" and r["flight"] >= 8:
+            r["P50"] *= 1.0 + 5e-4 * (r["flight"] - 7)
+    got = [d for d in diagnose_fleet(read_snapshot_table(write_table(tmp_path / "t.csv", rows), db), db)[0]
+           if d.engine == "ESN015"]
+    assert not any(d.detected for d in got[:8]), [(d.flight, d.cls, d.kind) for d in got if d.detected]
+    late = [d for d in got[28:] if d.detected and d.cls == "sensor:P50" and d.kind == "drift" and abs(d.onset - 8) <= 3]
+    assert len(late) >= 10, [(d.flight, d.cls, d.kind, d.onset) for d in got if d.detected]
+
+
 def test_a_sensor_noisier_since_a_flight_is_erratic(tmp_path, db):
     """The seed-11 fleet's ESN015 (healthy; five readings a snapshot) with T30 six times as noisy
     from flight 15 (a loose connector), diagnosed with 11 other engines: T30 is named on at least

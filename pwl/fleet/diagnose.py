@@ -96,7 +96,8 @@ class DiagnosisConfig:
     alpha: family-wise false-alarm probability per engine and flight; kappa: cost per free
     parameter in isolation; n_base: testing starts with n_base + 1 flights (a change may be at any flight but the first);
     min_step: smallest change reported (norm of the relative deviation change); min_rate: smallest
-    drift reported (per flight, same norm); floor: smallest flight-to-flight scatter assumed per
+    drift reported (per flight, same norm; a sensor's drift from after the first flights tested
+    is held to min_step accumulated only); floor: smallest flight-to-flight scatter assumed per
     channel (relative); wear_engines, wear_flights: a fleet of at least wear_engines engines
     with wear_flights complete flights each gives the normal wear its engines are tested against
     (:func:`wear_reference`); eps: relative uncertainty of the signatures per channel;
@@ -1877,14 +1878,18 @@ def _decide(dec, stage, bank, S, t, es, rowsok, n_tests, cfg, held=False) -> boo
     p = float(stats.chi2.sf(T_d, len(bank[di].columns))) * n_tests
     size = float(np.linalg.norm(S[:, bank[di].columns] @ th_d))   # fitted change (rate for ramps), relative
     # wear is the components': a sensor has no fleet wear to compare with, so its trend from the
-    # first flight is a drift held to min_rate (a slower one is as likely the seasons in the
-    # model's error: fuel flow "wearing" 0.03 %/flight over a winter and a summer)
-    sensor_trend = shape == "wear" and "sensor:" in bank[di].name
+    # first flight (or the first flights tested) is a drift held to min_rate (a slower one is as
+    # likely the seasons in the model's error: fuel flow "wearing" 0.03 %/flight over a winter and
+    # a summer). A sensor's drift from a later flight, level before it, is not: T48 drifting
+    # 0.05 %/flight from flight 10 was 15 K off at flight 40 and never named
+    sensor = "sensor:" in bank[di].name
+    early = tau <= t[min(2, t.size - 1)]
+    sensor_trend = sensor and (shape == "wear" or (shape == "ramp" and early))
     if shape in ("ramp", "wear"):
         # a component's drift off a wear line ``held`` to the fleet's (:func:`_held_slope`) is
         # judged against the fleet, as its wear is: no min_rate (an engine wearing its fan
         # 0.05 %/flight from flight 0 fitted a drift from flight 2, held to min_rate it was lost)
-        floor = cfg.min_rate if (shape == "ramp" and not held) or "sensor:" in bank[di].name else 0.0
+        floor = cfg.min_rate if (shape == "ramp" and not held and not sensor) or sensor_trend else 0.0
         big = size >= floor and size * (t[-1] - tau + 1) >= cfg.min_step
     else:
         big = size >= cfg.min_step
@@ -1897,7 +1902,7 @@ def _decide(dec, stage, bank, S, t, es, rowsok, n_tests, cfg, held=False) -> boo
     order = np.argsort(-w)
     dec.detected, dec.cls, dec.statistic = 1, h.name, T
     dec.kind = "drift" if shape == "ramp" or sensor_trend else shape
-    if held and shape == "ramp" and tau <= t[min(2, t.size - 1)]:
+    if held and shape == "ramp" and early:
         # the first ramp a held wear line leaves room for is a trend from the first flight (a
         # component's: wear; a fan wearing 0.05 %/flight from flight 0 read a drift from flight 2)
         tau = t[0]
