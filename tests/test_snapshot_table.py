@@ -187,6 +187,15 @@ def test_a_flight_filed_under_another_engine_is_named(tmp_path, db, plan):
     assert len(lines) == 1 and f"engine {a}'s flight 6 is {b}'s by its snapshots" in lines[0], lines
 
 
+def test_a_sensor_under_another_name_is_pointed_at(tmp_path, db, plan):
+    """T48 logged as 'EGT': the warning that T48 is missing names the numeric column not read
+    (before: only 'no column for T48'); a text column (regime) is not named."""
+    rows = [{("EGT" if k == "T48" else k): v for k, v in r.items()} for r in table_rows(plan)[:16]]
+    with pytest.warns(PwlWarning, match="no column for T48: .* its numeric columns not read: 'EGT' [(]one of them "
+                                        "under another name[?] a channel map, --channel-map, names it[)]$"):
+        read_snapshot_table(write_table(tmp_path / "t.csv", rows), db)
+
+
 def test_units_and_names_of_a_table(tmp_path, db, plan):
     """A table with its own column names and units read through a channel map (degC, kPa, lb/s,
     N1 in percent) and one with units declared in its header give the native table's operating
@@ -232,7 +241,8 @@ def test_a_table_without_what_it_needs_is_refused(tmp_path, db, plan, drop, matc
         read_snapshot_table(write_table(tmp_path / "t.csv", rows), db)
 
 
-@pytest.mark.parametrize("empty, said", [(False, "no column for P15"),
+@pytest.mark.parametrize("empty, said", [(False, "no column for P15: missing on every snapshot [(]an engine standard "
+                                                "without it[?][)]$"),
                                          (True, "column 'P15' holds no value in any of the table's 16 rows")])
 def test_a_table_without_a_sensor_reads_it_missing(tmp_path, db, plan, empty, said):
     """Without the column, or with a column the export left empty (said: it was not, before)."""

@@ -422,8 +422,12 @@ def _channels(path, columns: list[tuple], db: GainDatabase, channel_map) -> tupl
                                  "altitude and Mach with the inlet's pressure recovery of the database's build "
                                  f"({db.ambient.recovery:.4f})"), stacklevel=3)
     if absent:
+        read = cmap.columns() if cmap is not None else chans
+        unread = [c[0] for c in columns if c[0] not in read and np.isfinite(_numbers(c[2])).any()]
+        other = (f"; its numeric columns not read: {few([repr(c) for c in unread], 6)} (one of them under another "
+                 "name? a channel map, --channel-map, names it)" if unread else "")
         warnings.warn(PwlWarning(f"{path}: no column for {', '.join(absent)}: missing on every snapshot "
-                                 "(an engine standard without it?)"), stacklevel=3)
+                                 f"(an engine standard without it?){other}"), stacklevel=3)
     empty = [c for j, c in enumerate(chans) if c not in absent and np.isnan(X[:, j]).all()
              and not (derive and c == inlet[1])]
     if empty and n:
