@@ -283,7 +283,10 @@ def test_pwl_fleet_diagnose_takes_a_table(tmp_path, db, capsys, monkeypatch):
     plot_trend(tr, tmp_path / "t.png")
     assert titles == list(dict.fromkeys(c.split("@")[0] for c in tr.channels)) and os.path.getsize(tmp_path / "t.png") > 0
     assert main(["trend", table, "--database", demo_paths()[0], "--engine", "ESN404"]) == 2
-    assert main(["fleet", "diagnose", table, "--database", demo_paths()[0], "-o", out, "-j", "1"]) == 1
+    chart = tmp_path / "fleet.png"
+    assert main(["fleet", "diagnose", table, "--database", demo_paths()[0], "-o", out, "-j", "1", "--plot",
+                 str(chart)]) == 1
+    assert f"plot: {chart}" in capsys.readouterr().out and chart.stat().st_size > 0
     with open(out) as fh:
         serial = list(csv.DictReader(fh))
     assert len(serial) == 4 * 6

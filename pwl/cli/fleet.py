@@ -10,10 +10,13 @@ import json
 import os
 import re
 import sys
+from functools import partial
 
 from .output import check_output, plot_or_note
 
 HELP = "fleet benchmark: simulate a fleet with faults, diagnose it, score a diagnosis"
+#: ``pwl fleet diagnose --plot`` draws every engine of a fleet up to this size, else those with a finding
+CHART_ALL = 40
 
 
 def add_arguments(p):
@@ -55,6 +58,10 @@ def add_arguments(p):
     d.add_argument("--exclude", metavar="ENGINE:FLIGHT", action="append", default=[], help=EXCLUDE_HELP)
     d.add_argument("-j", "--workers", type=int, default=os.cpu_count() or 1,
                    help="engines diagnosed at once, in as many processes (default: the number of cores)")
+    d.add_argument("--plot", metavar="PNG",
+                   help="the fleet at a glance: an engine a line, a flight a column, coloured by the class "
+                        f"found (every engine of a fleet of up to {CHART_ALL} engines, else those with a "
+                        "finding), needs matplotlib (default: none)")
     d.set_defaults(_step=run_diagnose)
 
     c = sub.add_parser("score", help="score a diagnosis CSV against a fleet's truth.csv",
@@ -225,6 +232,7 @@ def run_diagnose(args) -> int:
     from ..fleet.trending import detail_units, readable_detail
 
     check_output(args.output)
+    check_output(args.plot)
     if args.engine_pattern:
         try:
             re.compile(args.engine_pattern)
@@ -311,6 +319,9 @@ def run_diagnose(args) -> int:
         print(f"{len(rec)} recoveries (every efficiency up: a wash or a repair; diagnosed on a new baseline since):")
         for e, r in rec:
             print(f"  {e}: {r.cls} at flight {r.onset}, {readable_detail(r.detail, units)}")
+    if args.plot:
+        from ..fleet.chart import plot_fleet
+        plot_or_note(partial(plot_fleet, every=len(engines) <= CHART_ALL), args.plot, rows)
     return 1 if skipped or flagged else 0
 
 
