@@ -3183,8 +3183,8 @@ def unread_note(records: list[FlightRecord]) -> list[str]:
     """Lines naming the snapshots of a table (records of mode ``table``) that are in no regime
     (:func:`assign_regimes`: an operating point fewer than its share of the flights flew, such as
     take-off rows on two engines of a fleet reporting idle and cruise; or none, a scheduling
-    channel missing) and so not read; empty when there are none. A flight log's windows outside the regimes (climb, descent) are not named:
-    they are most of its windows."""
+    channel missing) and so not read; empty when there are none. A flight log's windows outside
+    the regimes (climb, descent) are not named: they are most of its windows."""
     rare, blind = [], []
     for r in records:
         if r.mode == "table":

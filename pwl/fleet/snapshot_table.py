@@ -46,6 +46,7 @@ import os
 import re
 import sys
 import warnings
+from collections import Counter
 from functools import partial
 
 import numpy as np
@@ -313,17 +314,16 @@ def _warn_twice(path, flights: list[tuple], P: np.ndarray, X: np.ndarray, chans:
     if not hits:
         return
     e, fl, a, b, c, r = hits[0]
-    flown: dict[str, int] = {}
-    for f in flights:
-        flown[f[0]] = flown.get(f[0], 0) + 1
-    twinned = {h[0]: len({x[1] for x in hits if x[0] == h[0]}) for h in hits}
+    flown = Counter(f[0] for f in flights)
+    twinned = Counter(x for x, _ in {(h[0], h[1]) for h in hits})       # flights with twins, per engine
     # two rows on (nearly) every flight of a serial are two engines' histories, not one corrected flight
-    shared = [x for x, k in twinned.items() if k >= TWINNED_FLIGHTS and k >= TWINNED_SHARE * flown[x]]
+    shared = sorted((x for x, k in twinned.items() if k >= TWINNED_FLIGHTS and k >= TWINNED_SHARE * flown[x]),
+                    key=_natural)
     why = (f"two engines' rows under one serial ({few(shared, 3)}: {twinned[shared[0]]} of its "
            f"{flown[shared[0]]} flights)? give each engine its own serial" if shared else
            "a flight sent twice and corrected? remove the stale row")
     warnings.warn(PwlWarning(
-        f"{path}: {len({(x[0], x[1]) for x in hits})} flight(s) hold two rows at one operating point with different "
+        f"{path}: {sum(twinned.values())} flight(s) hold two rows at one operating point with different "
         f"values (the first: engine {e} flight {fl}, rows {a + 2} and {b + 2}, {c} {100 * r:.2g} % apart): of each "
         f"pair the row with more readings (else the first) is read and the other left out ({why})"),
         stacklevel=3)
