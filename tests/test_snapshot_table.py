@@ -297,6 +297,13 @@ def test_pwl_fleet_diagnose_takes_a_table(tmp_path, db, capsys, monkeypatch):
     assert "engines" in capsys.readouterr().err
     with open(out) as fh:
         assert list(csv.DictReader(fh)) == serial
+    # a sensor without a value anywhere: its scatter is not printed as if measured (the floor was)
+    with open(table) as fh:
+        rows = list(csv.DictReader(fh))
+    write_table(tmp_path / "empty.csv", [dict(r, P15="nan") for r in rows])
+    main(["fleet", "diagnose", str(tmp_path / "empty.csv"), "--database", demo_paths()[0], "-o", out, "-j", "1"])
+    text = capsys.readouterr().out
+    assert "P15@0 none (no value)" in text and "P15@1 none (no value)" in text and "T48@1 none" not in text, text
 
 
 def test_a_table_without_the_inlet_pressure_takes_it_from_air_data(tmp_path, db, plan):

@@ -275,8 +275,11 @@ def run_diagnose(args) -> int:
     print(f"{len(engines)} engines, {len(rows)} flights -> {args.output}")
     for j, c in enumerate(centers):
         print(f"  regime {j}: steady near " + ", ".join(f"{n} {v:.4g}" for n, v in zip(db.names["p"], c)))
+    read = {f"{c}@{g}" for r in records for g, w in r.windows.items()
+            for j, c in enumerate(r.snapshot.channels) if np.isfinite(r.snapshot.mean[w, j])}
     print("flight-to-flight scatter of the snapshot deviations (1 sigma, %): " +
-          ", ".join(f"{c} {100 * s:.3f}" for c, s in zip(channels, np.sqrt(np.diag(Sigma)))))
+          ", ".join(f"{c} {100 * s:.3f}" if c in read else f"{c} none (no value)"
+                    for c, s in zip(channels, np.sqrt(np.diag(Sigma)))))
     if wear is not None:
         print(f"normal wear of the fleet (median over {wear.engines} engines +- robust spread, % per flight): " +
               ", ".join(f"{n} {100 * m:+.4f} +- {100 * s:.4f}" for n, m, s in zip(wear.names, wear.median, wear.spread)))
