@@ -853,3 +853,20 @@ def test_two_engines_under_one_serial_and_a_scheduling_channel_missing_are_named
     assert not [m for m in said if "too few flights share" in m], said
     blind = [m for m in said if "have no operating point" in m]
     assert len(blind) == 1 and blind[0].startswith(f"{FLIGHTS} snapshots of 1 engines (ESN010)"), said
+
+
+def test_an_engine_whose_every_sensor_reads_missing_does_not_stop_the_fleet(tmp_path, db, plan, recwarn):
+    """ESN003's sensors all 30 % high (another engine type's rows under its serial): each read
+    missing as off the model (named), and the fleet diagnosed as without it. Before, its wear line
+    (no health parameter moves what is left: the inlet pressure) made the fleet's spread of wear
+    lines NaN and the diagnosis stopped on an internal error (LinAlgError)."""
+    rows = table_rows(plan, 5)
+    sensors = ["Nc", "T24", "Ps30", "T30", "T48", "P50", "P15", "Wf"]
+    odd = [dict(r, **{c: 1.3 * r[c] for c in sensors}) if r["engine"] == "ESN003" else r for r in rows]
+    recwarn.clear()
+    got = diagnose_fleet(read_snapshot_table(write_table(tmp_path / "odd.csv", odd), db), db)[0]
+    said = [str(w.message) for w in recwarn.list if "ESN003" in str(w.message) and "off the model" in str(w.message)]
+    assert sorted(m.split(":")[0] for m in said) == sorted(sensors), said
+    mine = [d for d in got if d.engine == "ESN003"]
+    assert len(mine) == FLIGHTS and not any(d.detected for d in mine)
+    assert all(set(d.missing.split()) == set(sensors) for d in mine), [d.missing for d in mine]

@@ -1093,6 +1093,8 @@ def _trend_spread(series: list[EngineSeries], Sigma: np.ndarray, norm: FleetNorm
         y = Wt @ (v - Sh @ norm.median - norm.rest_median[idx]) / np.sqrt(c)
         Q = np.linalg.qr(A, mode="complete")[0]
         r = np.linalg.matrix_rank(A)
+        if r == 0:          # channels no health parameter moves (every sensor read missing): no evidence
+            continue
         if r < A.shape[0]:
             out.append(float(np.sum((Q[:, r:].T @ y) ** 2)) / stats.chi2.median(A.shape[0] - r))
         inside.append(float(np.sum((Q[:, :r].T @ y) ** 2)) / stats.chi2.median(r))
@@ -2270,8 +2272,8 @@ def _component_wear(fit, bank, taus, shape) -> list:
     flight: T_all - T = +0.3 at flight 3, -110 at 17)."""
     fits = [f for f in fit(taus, shape, bank=bank) if not sensor_pair(bank[f[1]].name)]   # (not from delivery)
     comps = sorted({c for h in bank if "sensor:" not in h.name for c in h.columns})
-    every = fit(taus, shape, bank=[Hypothesis("components", comps)])
-    if not every:              # fewer channels than health parameters: no such comparison
+    every = fit(taus, shape, bank=[Hypothesis("components", comps)]) if comps else []
+    if not every:              # fewer channels than health parameters (or none any moves): no such comparison
         return fits
     T_all = every[0][2]
     cut = {r: stats.chi2.ppf(1 - SENSOR_TREND_LEVEL, max(1, len(comps) - r)) for r in {len(h.columns) for h in bank}}
