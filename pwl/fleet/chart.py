@@ -21,7 +21,7 @@ def _state(d: Decision) -> str:
         return STATES[0][0]
     if d.status in _NOT_DIAGNOSED:
         return STATES[2][0]
-    if d.status in ("recovery", "cleared") or d.kind in ("recovery", "cleared"):
+    if d.status in ("recovery", "cleared"):
         return STATES[3][0]
     return STATES[1][0]
 

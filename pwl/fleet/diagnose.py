@@ -1003,11 +1003,16 @@ def _usable(es: EngineSeries, Sigma: np.ndarray):
     whitening of Sigma on them. An engine with every channel: all of them, as before. Counting
     only flights with every channel of the fleet, a fleet of two instrumentation standards had no
     reference at all: a fleet-wide T48 recalibration alarmed every engine, a calibration level of
-    +31 K on T48 was missed."""
+    +31 K on T48 was missed. An engine whose channels no health parameter moves (every sensor
+    read missing: the inlet pressure left) has no flight for them: its zero health rates joined
+    the fleet's wear and made its spread of wear lines NaN (a LinAlgError stopped the fleet)."""
     have = np.isfinite(es.D)
     flown = have.any(axis=1)
     idx = np.flatnonzero(have[flown].mean(axis=0) >= 0.5) if flown.any() else np.arange(es.D.shape[1])
     ok = np.all(have[:, idx], axis=1)
+    health = [j for j, c in enumerate(es.columns) if not c.startswith(("sensor:", "gain:"))]
+    if ok.any() and not np.any(es.S[ok][:, idx][:, :, health]):
+        ok[:] = False
     return ok, idx, whitening(Sigma, idx)
 
 
@@ -1093,8 +1098,6 @@ def _trend_spread(series: list[EngineSeries], Sigma: np.ndarray, norm: FleetNorm
         y = Wt @ (v - Sh @ norm.median - norm.rest_median[idx]) / np.sqrt(c)
         Q = np.linalg.qr(A, mode="complete")[0]
         r = np.linalg.matrix_rank(A)
-        if r == 0:          # channels no health parameter moves (every sensor read missing): no evidence
-            continue
         if r < A.shape[0]:
             out.append(float(np.sum((Q[:, r:].T @ y) ** 2)) / stats.chi2.median(A.shape[0] - r))
         inside.append(float(np.sum((Q[:, :r].T @ y) ** 2)) / stats.chi2.median(r))
@@ -1266,7 +1269,7 @@ def _pooled_step(eng: list, bank: list[Hypothesis], cfg: DiagnosisConfig, column
         return None
     taus = sorted({float(x) for _, _, _, t, _, _ in full for x in t[2:-1]} - set(known))
     Wt = full[0][2]
-    best = (-1.0, None, None, None)
+    best = (-1.0, None, None, None, None)
     for tau in taus:
         each, w = [], []
         for _, D, _, t, _, own in full:
@@ -1288,11 +1291,10 @@ def _pooled_step(eng: list, bank: list[Hypothesis], cfg: DiagnosisConfig, column
         den = len(each) / (np.pi / 2.0 * float(np.mean(1.0 / np.array(w))))
         E = den * float(np.sum((Wt @ delta) ** 2))
         if E > best[0]:
-            best = (E, tau, delta, (den, each))
-    E, tau, delta, rest = best
+            best = (E, tau, delta, den, each)
+    E, tau, delta, den, each = best
     if tau is None:
         return None
-    den, each = rest
     p = float(stats.chi2.sf(E, m)) * len(taus)
     shown = np.mean([float((Wt @ d) @ (Wt @ delta)) > 0.0 for d in each])
     if not (p < cfg.alpha and np.linalg.norm(delta) >= cfg.min_step and shown >= POOLED_SHARE):
